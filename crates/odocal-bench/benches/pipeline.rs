@@ -16,7 +16,6 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use odocal::eiv::EivOptions;
-use odocal::model::Theta;
 use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::EivMethodOptions;
@@ -32,8 +31,9 @@ fn bench_model(c: &mut Criterion) {
     use std::hint::black_box;
     let x = State::new(10.0, -3.0, 0.3);
     let u = Input { n_rl: 5.1, n_rr: 5.3, beta: 0.01, a_y: 1.2 };
+    let theta = odocal::Theta::SIM_DEFAULT_TRUE;
     c.bench_function("model/step_jacobians", |b| {
-        b.iter(|| step_jacobians(black_box(&x), black_box(&u), black_box(&Theta::SIM_DEFAULT_TRUE), 0.025))
+        b.iter(|| step_jacobians(black_box(&x), black_box(&u), black_box(&theta), 0.025))
     });
 }
 
@@ -51,11 +51,10 @@ fn bench_simulate(c: &mut Criterion) {
 fn bench_validate(c: &mut Criterion) {
     let d = drive(24.0);
     let val = validation_segments(&d, &ValidationSegmentOptions::default()).expect("validation");
+    let theta = SimOptions::default().theta_true;
     let mut g = c.benchmark_group("validate_24km");
     g.sample_size(10);
-    g.bench_function("one_theta", |b| {
-        b.iter(|| odocal::mean_position_error(&d, &val, &Theta::SIM_DEFAULT_TRUE).expect("validate"))
-    });
+    g.bench_function("one_theta", |b| b.iter(|| odocal::mean_position_error(&d, &val, &theta).expect("validate")));
     g.finish();
 }
 

@@ -27,7 +27,7 @@ fn qp_solve(c: &mut Criterion) {
     for (label, input_box_rel) in [("loose", 0.05), ("tight", 0.025)] {
         let opts = CompensateOptions { input_box_rel, ..Default::default() };
         for (name, solver) in [("structured", SolverKind::Structured), ("clarabel", SolverKind::Clarabel)] {
-            let qp = QpOptions { solver, ..Default::default() };
+            let qp = QpOptions::from(solver);
             group.bench_function(BenchmarkId::new(name, label), |b| {
                 b.iter(|| {
                     compensate_segments(black_box(&drive), &segments, &thetas, &opts, &qp, None).expect("compensate")

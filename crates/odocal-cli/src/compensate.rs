@@ -82,7 +82,7 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
         &segs,
         &[a.theta.theta],
         &CompensateOptions { extrinsics, ..Default::default() },
-        &QpOptions { solver: a.qp_solver, ..Default::default() },
+        &QpOptions::from(a.qp_solver),
         Some(&cb),
     )?;
     bars.finish();

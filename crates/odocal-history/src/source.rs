@@ -126,7 +126,7 @@ mod tests {
             t_end_s: span.1,
             sigma: Theta { c_e: 1e-3, c_d: 1e-4, t_r: 1e-3, d: 1e-4 }.into(),
             verdict: Some("accepted".into()),
-            ..CalibrationRecord::new("van", fingerprint, "eiv", Theta::SIM_DEFAULT_TRUE)
+            ..CalibrationRecord::new("van", fingerprint, "eiv", odocal::sim::SimOptions::default().theta_true)
         }
     }
 

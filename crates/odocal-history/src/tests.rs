@@ -296,7 +296,7 @@ fn follow_does_not_start_from_a_model_only_sigma() {
     let csv = dir.path().join("a.csv");
     let sim = odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::paper(4) };
     odocal::sim::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
-    let truth = Theta::SIM_DEFAULT_TRUE;
+    let truth = odocal::sim::SimOptions::default().theta_true;
     let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
     let follow_from = |name: &str, sigma: Option<Theta>, model_only: Option<bool>| {
         let mut db = History::open(dir.path().join(name)).expect("open");
@@ -906,7 +906,7 @@ fn follow_does_not_start_from_the_sigma_of_a_parameter_not_observable() {
     let csv = dir.path().join("a.csv");
     let sim = odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::paper(4) };
     odocal::sim::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
-    let truth = Theta::SIM_DEFAULT_TRUE;
+    let truth = odocal::sim::SimOptions::default().theta_true;
     let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
     let follow_from = |name: &str, sigma: Option<Theta>, unobservable: &[&str]| {
         let mut db = History::open(dir.path().join(name)).expect("open");

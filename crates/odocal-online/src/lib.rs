@@ -402,13 +402,14 @@ impl Calibrator {
     /// # Errors
     /// [`Error::InvalidOption`] naming the field: invalid options, a sample
     /// time that is not a positive number, a `sigma0` with a negative or
-    /// non-finite component; θ_0 not finite and positive.
+    /// non-finite component; [`Error::InvalidTheta`] for a θ_0 outside its
+    /// physical limits ([`Theta::check_physical_limits`]).
     pub fn new(theta0: Theta, sigma0: Option<Theta>, sample_time_s: f64, opts: OnlineOptions) -> Result<Calibrator> {
         opts.validate()?;
         if !(sample_time_s.is_finite() && sample_time_s > 0.0) {
             return Err(Error::InvalidOption { field: "sample_time_s", reason: "must be positive".into() });
         }
-        theta0.validate()?;
+        theta0.check_physical_limits()?;
         if let Some(s) = sigma0 {
             let named = ["c_e", "c_d", "t_r", "d"].into_iter().zip(<[f64; 4]>::from(s));
             if let Some((name, v)) = named.into_iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {

@@ -46,10 +46,10 @@ impl PyRawStream {
     fn streams<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let out = PyDict::new(py);
         let files = self.manifest.stream_files();
-        for (name, cols) in self.raw.columns() {
+        for (name, time_column, cols) in self.raw.columns() {
             let d = PyDict::new(py);
             d.set_item("file", files.iter().find(|(n, _)| n == name).map(|(_, f)| f))?;
-            d.set_item("time_column", self.manifest.time_column(name))?;
+            d.set_item("time_column", time_column)?;
             d.set_item("columns", cols.to_vec())?;
             out.set_item(name, d)?;
         }

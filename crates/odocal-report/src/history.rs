@@ -278,7 +278,7 @@ mod tests {
     use odocal_history::{CalibrationRecord, ONLINE};
 
     fn row(id: i64, c_d: f64) -> HistoryRow {
-        let theta = Theta { c_d, ..Theta::SIM_DEFAULT_TRUE };
+        let theta = Theta { c_d, ..odocal::sim::SimOptions::default().theta_true };
         let sigma = Theta { c_e: 1e-4, c_d: 2e-5, t_r: 1e-3, d: 1e-5 };
         HistoryRow {
             id,

@@ -107,9 +107,10 @@ pub enum Error {
     /// A numerical method diverged or produced non-finite numbers.
     #[error("numerical failure: {0}")]
     Numerical(String),
-    /// A QP solver failed on a problem, or its options are invalid.
+    /// A QP solver failed on a problem, or its options are invalid: what
+    /// the solver said.
     #[error("QP solver: {0}")]
-    Qp(#[from] QpError),
+    Qp(String),
     /// The compensation QP of one segment could not be solved (SPEC §5).
     #[error("compensation of the segment at sample {segment_start} (linearization {linearization}): solver {solver}: {source}{}",
         fallback.as_ref().map(|(n, e)| format!("; fallback {n}: {e}")).unwrap_or_default())]
@@ -120,11 +121,12 @@ pub enum Error {
         linearization: usize,
         /// The solver that failed.
         solver: &'static str,
-        /// Its error.
+        /// Its error (why the QP was not solved: infeasible, the iteration
+        /// limit, a numerical failure, a malformed problem).
         #[source]
-        source: QpError,
+        source: Box<dyn std::error::Error + Send + Sync>,
         /// The fallback solver and its error, when one was tried.
-        fallback: Option<(&'static str, QpError)>,
+        fallback: Option<(&'static str, String)>,
     },
     /// A drive manifest is invalid.
     #[error("{path}: {reason}")]
@@ -295,12 +297,19 @@ impl Error {
     }
 }
 
+impl From<QpError> for Error {
+    fn from(e: QpError) -> Error {
+        Error::Qp(e.to_string())
+    }
+}
+
 /// The library's result type.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
-/// Why a QP was not solved.
+/// Why a QP was not solved (in [`Error::Qp`] and [`Error::Compensation`]
+/// as what the solver said).
 #[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, Deserialize)]
-pub enum QpError {
+pub(crate) enum QpError {
     /// The problem has no feasible point.
     #[error("infeasible: {0}")]
     Infeasible(String),

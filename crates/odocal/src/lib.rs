@@ -65,8 +65,7 @@
 //! [`eiv`] (the errors-in-variables options), [`sim`] (the simulator),
 //! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags, streamed
 //! import, drive files read in chunks), [`settings`] (calibration
-//! settings as key–value pairs), [`pooling`] (the σ for the next drive in
-//! the report) and [`output`] (atomic writes and output paths checked
+//! settings as key–value pairs) and [`output`] (atomic writes and output paths checked
 //! against inputs, for a front end's own files). Calibration that keeps up
 //! with a streaming drive is the crate odocal-online; the per-vehicle
 //! calibration history in SQLite, with the gated write-back of `odocal
@@ -77,7 +76,8 @@
 //! -history, -report and -bench, the fuzz targets) or as the type of a
 //! public field or result (the reports' types are their JSON schema). What only the studies in
 //! crates/odocal-lab use (the module `research`, the estimator itself and
-//! its report in [`eiv`], the Gauss-Newton report in [`identify`]) is
+//! its report in [`eiv`], the Gauss-Newton report in [`identify`], the
+//! parts of the σ for the next drive in the module `pooling`) is
 //! public with the feature `research` (off by default) and crate-internal
 //! without it. tests/architecture.rs holds the number of public items to a
 //! budget.
@@ -188,15 +188,14 @@ pub use calibrate::{
     calibrate,
     drive_fit::validate,
     eiv::{CorrectBias, EivMethodOptions},
-    report::{
-        CalibrationReport, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, Timing, ValidationSummary,
-    },
+    report::{CalibrationReport, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, ValidationSummary},
     settings,
     three_step::{FinalSegments, ThreeStepOptions},
     Calibration, CalibrationOptions, Holdout, Method,
 };
-// Validation and the verdict.
-pub use assess::pooling;
+// Validation and the verdict; the parts of the σ for the next drive
+// (research).
+research_use! { assess::pooling }
 pub use assess::{
     heading_offset::HeadingOffsetFit,
     position_error::{dead_reckoned_reference, mean_position_error, segment_position_error_with, ValidationReport},
@@ -214,6 +213,7 @@ research_pub! {
     mod research {
         research_use! {
             crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum},
+            crate::calibrate::report::Timing,
             crate::calibrate::{
                 calibrate_detailed,
                 input_noise::{simex_bias, wheel_white_noise},

@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 
 /// The layers, lowest first: `(layer, top-level module)`.
 const LAYERS: &[(u32, &str)] = &[
-    (0, "error"),      // Error, Result, QpError
+    (0, "error"),      // Error, Result, the QP errors
     (0, "progress"),   // progress events
     (0, "simd"),       // the instruction-set choice of the AVX2 builds
     (1, "model"),      // θ, the equations, parameters, extrinsics, physical limits

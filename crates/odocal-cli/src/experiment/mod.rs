@@ -104,7 +104,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
 
     let method = Method::ThreeStep(ThreeStepOptions {
         initial_batches: a.batches,
-        qp: QpOptions { solver: a.qp_solver, ..Default::default() },
+        qp: QpOptions::from(a.qp_solver),
         ..Default::default()
     });
     let calibration = CalibrationOptions { method, seed: a.seed, ..Default::default() };

@@ -123,8 +123,8 @@ fn run() -> Res<()> {
                 "{km} | {} | {name} | {best:.2} ({}) | {:.2} | {:.2} | {passes} | {it} | {windows}",
                 d.len(),
                 all.join(" "),
-                r.timing_s.initial_identification,
-                r.timing_s.final_identification,
+                r.timing().initial_identification,
+                r.timing().final_identification,
             );
         }
     }

@@ -59,7 +59,7 @@ fn fit(name: &str, r: &CalibrationReport) -> Fit {
         theta: <[_; 4]>::from(r.theta),
         next: <[_; 4]>::from(r.result_sigma()),
         within: <[_; 4]>::from(r.within_drive_sigma()),
-        within_part: r.next_drive_sigma.as_ref().map_or([None; 4], |n| n.within_drive),
+        within_part: r.next_drive_sigma().map_or([None; 4], |n| n.within_drive),
         verdict: r.verdict.level.to_string(),
         outcome,
     }

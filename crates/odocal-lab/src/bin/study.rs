@@ -127,7 +127,7 @@ fn study_drive(noise: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     let sim = simulate_preset(noise, a.km, seed)?;
     let drive = &sim.drive;
     let truth = sim.sidecar.theta_true;
-    let qp = QpOptions { solver: a.solver, ..Default::default() };
+    let qp = QpOptions::from(a.solver);
     let method = Method::ThreeStep(ThreeStepOptions { qp: qp.clone(), ..Default::default() });
     let opts = CalibrationOptions { method, seed, ..Default::default() };
     let det = calibrate_detailed(drive, None, &opts, None)?;

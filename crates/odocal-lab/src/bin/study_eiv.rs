@@ -425,7 +425,7 @@ fn study_drive(name: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
         };
         let gn = detail.identification.theta;
         if label == "EIV known" {
-            let t_gn = r.timing_s.initial_identification;
+            let t_gn = r.timing().initial_identification;
             runs.insert("G-N".to_string(), Run::plain(gn, vec![], judge.ep(&gn)?, t_gn, 0));
         }
         let Some(fit) = detail.eiv.as_deref() else {

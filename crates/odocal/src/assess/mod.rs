@@ -1,5 +1,5 @@
 //! Judging a θ and a calibration: the dead-reckoning error Ē_p
-//! ([`position_error`], SPEC §7), the σ for the next drive ([`pooling`]), validation on the drive and on other
+//! ([`position_error`], SPEC §7), the σ for the next drive (`pooling`), validation on the drive and on other
 //! drives ([`validate`], [`validation_drives`]), the reachable minimum of
 //! Ē_p ([`reachable`]), the trust checks and verdict ([`trust`]) and the
 //! warnings a calibration reports ([`warning`]).
@@ -44,11 +44,13 @@
 //!   ([`trust::VerdictReason::HeadingOffsetHeld`]).
 //!
 //! The large-σ check uses the σ that stands for the result, the σ for the
-//! next drive ([`crate::pooling`]); the cross-split and convergence checks
+//! next drive (`crate::pooling`); the cross-split and convergence checks
 //! the method's within-drive σ.
 
 pub(crate) mod heading_offset;
-pub mod pooling;
+research_pub! {
+    mod pooling;
+}
 pub(crate) mod position_error;
 pub(crate) mod reachable;
 pub(crate) mod trust;

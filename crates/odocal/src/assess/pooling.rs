@@ -100,20 +100,22 @@ use serde::{Deserialize, Serialize};
 use crate::eiv::NoiseSource;
 use crate::model::Theta;
 
-/// A random-effects pooling of one parameter over several drives
-/// (`dersimonian_laird`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct RandomEffects {
-    /// The pooled estimate: the mean weighted by `1/(σ_i² + τ²)`.
-    pub mean: f64,
-    /// 1σ of the pooled mean, `1/√Σ(1/(σ_i² + τ²))`.
-    pub mean_sigma: f64,
-    /// The between-drive σ τ.
-    pub tau: f64,
-    /// Cochran's Q of the fixed-effect fit.
-    pub q: f64,
-    /// Number of drives.
-    pub drives: usize,
+research_pub! {
+    /// A random-effects pooling of one parameter over several drives
+    /// (`dersimonian_laird`).
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    struct RandomEffects {
+        /// The pooled estimate: the mean weighted by `1/(σ_i² + τ²)`.
+        pub mean: f64,
+        /// 1σ of the pooled mean, `1/√Σ(1/(σ_i² + τ²))`.
+        pub mean_sigma: f64,
+        /// The between-drive σ τ.
+        pub tau: f64,
+        /// Cochran's Q of the fixed-effect fit.
+        pub q: f64,
+        /// Number of drives.
+        pub drives: usize,
+    }
 }
 
 /// DerSimonian–Laird random effects: `estimates[i]` with within-drive 1σ
@@ -240,90 +242,92 @@ pub(crate) enum BetweenDriveSource {
 /// report, the parameter file, the HTML report and Python.
 pub(crate) const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-drive ⊕ between-drive";
 
-/// The parts of the σ for the next drive, per parameter `[c_e, c_d, t_r, d]`
-/// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct NextDriveSigma {
-    /// `√(within² + common_mode² + fallback_gap²/3 + heading_drift_floor_gap²/3
-    /// + t_r_above_start² + between²)`: the σ that stands for the result.
-    pub sigma: [Option<f64>; 4],
-    /// The method's within-drive σ (for a parameter the EIV filter held at
-    /// its start's estimate: the start's σ).
-    pub within_drive: [Option<f64>; 4],
-    /// With the EIV method, the common-mode wheel noise the within-drive σ
-    /// leaves out, `within · wheel_common_rel_sigma / 0.025` (module docs,
-    /// `h`; `COMMON_MODE_REFERENCE_SIGMA`); zeros otherwise.
-    /// In JSON only when not all zero.
-    #[serde(default, skip_serializing_if = "all_zero")]
-    pub common_mode: [f64; 4],
-    /// The common-mode wheel-scale σ σ_c of EIV's fitted noise model that
-    /// [`Self::common_mode`] comes from (relative). In JSON only when present.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub wheel_common_rel_sigma: Option<f64>,
-    /// σ_c sits at its upper clamp: the drive's common-mode wheel noise is
-    /// heavier than EIV's model allows, and [`Self::common_mode`] is a lower
-    /// bound. In JSON only when true.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub wheel_common_clamped: bool,
-    /// The gap between the EIV method's two estimates: after an EIV
-    /// fallback |EIV's own θ − the fallback's θ|; when the result is EIV's
-    /// refit ([`Self::gap_is_refit`]) |the refit's θ − its batch
-    /// Gauss-Newton start's θ|; zeros otherwise.
-    pub fallback_gap: [f64; 4],
-    /// `fallback_gap` is the refit's gap to its batch Gauss-Newton start
-    /// (the result is EIV's refit with the noise sources released), not a
-    /// fallback's gap to EIV's own estimate. In JSON only when true.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub gap_is_refit: bool,
-    /// After a fallback from a fit with these noise levels held:
-    /// `fallback_gap` is the gap to EIV's fit with them estimated, which
-    /// passed the checks the held fit failed (the data contradict the held
-    /// levels). In JSON only when not empty.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub gap_released_noise: Vec<NoiseSource>,
-    /// After a fallback: why EIV's fit bounds no errors-in-variables bias
-    /// of the fallback, when it does not ([`FallbackUnchecked`]). In JSON
-    /// only when present.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fallback_unchecked: Option<FallbackUnchecked>,
-    /// When the result is EIV's own estimate (not a refit, not a fallback)
-    /// and its t_r lies above its batch Gauss-Newton start's: the excess
-    /// (t_r's entry) and the shift of every other parameter along its
-    /// regression on t_r in EIV's covariance (`excess · C_it / C_tt`);
-    /// zeros otherwise. Enters as shift² (module docs). In JSON only when
-    /// not all zero.
-    #[serde(default, skip_serializing_if = "all_zero")]
-    pub t_r_above_start: [f64; 4],
-    /// When the result is EIV's own estimate holding the reference's
-    /// heading drift at its floor: |θ − θ without the floor| (before the
-    /// bias correction; `crate::eiv::HeadingDriftTest::theta_without_floor`),
-    /// zeros otherwise. The floor is a modelling choice, not an estimate;
-    /// with the truth anywhere between the two fits it enters as gap²/3,
-    /// as [`Self::fallback_gap`] does (module docs, `f`). In JSON only when
-    /// not all zero.
-    #[serde(default, skip_serializing_if = "all_zero")]
-    pub heading_drift_floor_gap: [f64; 4],
-    /// The between-drive part that enters `sigma`,
-    /// `√max(τ², floor² − within²)`: τ ([`Self::between_drive_tau`]), or
-    /// more where the within-drive σ falls short of the floor
-    /// ([`Self::between_drive_floor`]). With it,
-    /// `√(within² + between²) = max(floor, √(within² + τ²))`.
-    pub between_drive: [f64; 4],
-    /// The between-drive σ τ: with one drive the prior's
-    /// (`BetweenDrivePrior::between`), with several the larger of that
-    /// and their random-effects τ.
-    #[serde(default)]
-    pub between_drive_tau: [f64; 4],
-    /// The floor of the within-drive ⊕ between-drive σ: the prior's spread
-    /// of estimates (`BetweenDrivePrior::spread`), which holds the
-    /// within-drive noise of the runs it was measured on.
-    #[serde(default)]
-    pub between_drive_floor: [f64; 4],
-    /// Where τ comes from.
-    pub(crate) between_source: BetweenDriveSource,
-    /// With several drives: their separate fits and the pooling.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub pooled: Option<PooledDrives>,
+research_pub! {
+    /// The parts of the σ for the next drive, per parameter `[c_e, c_d, t_r, d]`
+    /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct NextDriveSigma {
+        /// `√(within² + common_mode² + fallback_gap²/3 + heading_drift_floor_gap²/3
+        /// + t_r_above_start² + between²)`: the σ that stands for the result.
+        pub sigma: [Option<f64>; 4],
+        /// The method's within-drive σ (for a parameter the EIV filter held at
+        /// its start's estimate: the start's σ).
+        pub within_drive: [Option<f64>; 4],
+        /// With the EIV method, the common-mode wheel noise the within-drive σ
+        /// leaves out, `within · wheel_common_rel_sigma / 0.025` (module docs,
+        /// `h`; `COMMON_MODE_REFERENCE_SIGMA`); zeros otherwise.
+        /// In JSON only when not all zero.
+        #[serde(default, skip_serializing_if = "all_zero")]
+        pub common_mode: [f64; 4],
+        /// The common-mode wheel-scale σ σ_c of EIV's fitted noise model that
+        /// [`Self::common_mode`] comes from (relative). In JSON only when present.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub wheel_common_rel_sigma: Option<f64>,
+        /// σ_c sits at its upper clamp: the drive's common-mode wheel noise is
+        /// heavier than EIV's model allows, and [`Self::common_mode`] is a lower
+        /// bound. In JSON only when true.
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        pub wheel_common_clamped: bool,
+        /// The gap between the EIV method's two estimates: after an EIV
+        /// fallback |EIV's own θ − the fallback's θ|; when the result is EIV's
+        /// refit ([`Self::gap_is_refit`]) |the refit's θ − its batch
+        /// Gauss-Newton start's θ|; zeros otherwise.
+        pub fallback_gap: [f64; 4],
+        /// `fallback_gap` is the refit's gap to its batch Gauss-Newton start
+        /// (the result is EIV's refit with the noise sources released), not a
+        /// fallback's gap to EIV's own estimate. In JSON only when true.
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        pub gap_is_refit: bool,
+        /// After a fallback from a fit with these noise levels held:
+        /// `fallback_gap` is the gap to EIV's fit with them estimated, which
+        /// passed the checks the held fit failed (the data contradict the held
+        /// levels). In JSON only when not empty.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        pub gap_released_noise: Vec<NoiseSource>,
+        /// After a fallback: why EIV's fit bounds no errors-in-variables bias
+        /// of the fallback, when it does not ([`FallbackUnchecked`]). In JSON
+        /// only when present.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub fallback_unchecked: Option<FallbackUnchecked>,
+        /// When the result is EIV's own estimate (not a refit, not a fallback)
+        /// and its t_r lies above its batch Gauss-Newton start's: the excess
+        /// (t_r's entry) and the shift of every other parameter along its
+        /// regression on t_r in EIV's covariance (`excess · C_it / C_tt`);
+        /// zeros otherwise. Enters as shift² (module docs). In JSON only when
+        /// not all zero.
+        #[serde(default, skip_serializing_if = "all_zero")]
+        pub t_r_above_start: [f64; 4],
+        /// When the result is EIV's own estimate holding the reference's
+        /// heading drift at its floor: |θ − θ without the floor| (before the
+        /// bias correction; `crate::eiv::HeadingDriftTest::theta_without_floor`),
+        /// zeros otherwise. The floor is a modelling choice, not an estimate;
+        /// with the truth anywhere between the two fits it enters as gap²/3,
+        /// as [`Self::fallback_gap`] does (module docs, `f`). In JSON only when
+        /// not all zero.
+        #[serde(default, skip_serializing_if = "all_zero")]
+        pub heading_drift_floor_gap: [f64; 4],
+        /// The between-drive part that enters `sigma`,
+        /// `√max(τ², floor² − within²)`: τ ([`Self::between_drive_tau`]), or
+        /// more where the within-drive σ falls short of the floor
+        /// ([`Self::between_drive_floor`]). With it,
+        /// `√(within² + between²) = max(floor, √(within² + τ²))`.
+        pub between_drive: [f64; 4],
+        /// The between-drive σ τ: with one drive the prior's
+        /// (`BetweenDrivePrior::between`), with several the larger of that
+        /// and their random-effects τ.
+        #[serde(default)]
+        pub between_drive_tau: [f64; 4],
+        /// The floor of the within-drive ⊕ between-drive σ: the prior's spread
+        /// of estimates (`BetweenDrivePrior::spread`), which holds the
+        /// within-drive noise of the runs it was measured on.
+        #[serde(default)]
+        pub between_drive_floor: [f64; 4],
+        /// Where τ comes from.
+        pub(crate) between_source: BetweenDriveSource,
+        /// With several drives: their separate fits and the pooling.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub pooled: Option<PooledDrives>,
+    }
 }
 
 impl NextDriveSigma {
@@ -442,25 +446,27 @@ impl NextDriveSigma {
     }
 }
 
-/// After an EIV fallback, why batch Gauss-Newton's errors-in-variables
-/// bias is left unchecked: EIV's own θ (and its fit with held noise
-/// levels released, if any) fails a plausibility guard, so no EIV
-/// estimate gives a gap to measure the bias by. On heavy common-mode
-/// wheel noise EIV's fit puts the common-mode scale at its upper clamp
-/// and c_e 9–20 % low (docs/validation.md, "Heavy wheel noise"), while
-/// batch G-N's t_r is off by up to 2.8 %. The verdict is doubtful
-/// ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]); the σ for
-/// the next drive cannot include a bias nothing estimates.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct FallbackUnchecked {
-    /// The wheel noise sources whose scale EIV's fit left at its upper
-    /// clamp (the drive's wheel noise is heavier than the model allows).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub clamped: Vec<NoiseSource>,
-    /// The noise levels the calibration held (`known`; the drive may
-    /// contradict them).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub held: Vec<NoiseSource>,
+research_pub! {
+    /// After an EIV fallback, why batch Gauss-Newton's errors-in-variables
+    /// bias is left unchecked: EIV's own θ (and its fit with held noise
+    /// levels released, if any) fails a plausibility guard, so no EIV
+    /// estimate gives a gap to measure the bias by. On heavy common-mode
+    /// wheel noise EIV's fit puts the common-mode scale at its upper clamp
+    /// and c_e 9–20 % low (docs/validation.md, "Heavy wheel noise"), while
+    /// batch G-N's t_r is off by up to 2.8 %. The verdict is doubtful
+    /// ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]); the σ for
+    /// the next drive cannot include a bias nothing estimates.
+    #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+    struct FallbackUnchecked {
+        /// The wheel noise sources whose scale EIV's fit left at its upper
+        /// clamp (the drive's wheel noise is heavier than the model allows).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        pub clamped: Vec<NoiseSource>,
+        /// The noise levels the calibration held (`known`; the drive may
+        /// contradict them).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        pub held: Vec<NoiseSource>,
+    }
 }
 
 /// True when every entry is zero (serde's `skip_serializing_if`).
@@ -468,19 +474,21 @@ fn all_zero(a: &[f64; 4]) -> bool {
     a.iter().all(|x| *x == 0.0)
 }
 
-/// Several drives' separate fits and their random-effects pooling
-/// (DerSimonian–Laird, per parameter).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PooledDrives {
-    /// The method of the separate fits.
-    pub method: String,
-    /// Each drive's θ.
-    pub theta: Vec<Theta>,
-    /// Each drive's within-drive σ, `[c_e, c_d, t_r, d]`.
-    pub sigma: Vec<[Option<f64>; 4]>,
-    /// Per parameter the pooling (`None` for a parameter held or a drive
-    /// without its σ).
-    pub params: [Option<RandomEffects>; 4],
+research_pub! {
+    /// Several drives' separate fits and their random-effects pooling
+    /// (DerSimonian–Laird, per parameter).
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct PooledDrives {
+        /// The method of the separate fits.
+        pub method: String,
+        /// Each drive's θ.
+        pub theta: Vec<Theta>,
+        /// Each drive's within-drive σ, `[c_e, c_d, t_r, d]`.
+        pub sigma: Vec<[Option<f64>; 4]>,
+        /// Per parameter the pooling (`None` for a parameter held or a drive
+        /// without its σ).
+        pub params: [Option<RandomEffects>; 4],
+    }
 }
 
 impl PooledDrives {

@@ -263,7 +263,7 @@ pub struct TrustOptions {
     pub max_final_step_sigmas: f64,
     /// After an EIV fallback, a free parameter whose batch Gauss-Newton
     /// value lies more than this many σ (the σ for the next drive without
-    /// the gap, [`crate::pooling::NextDriveSigma`] less its gap term) from EIV's
+    /// the gap, `crate::pooling::NextDriveSigma` less its gap term) from EIV's
     /// own estimate makes the result doubtful
     /// ([`VerdictReason::FallbackDisagrees`]): batch G-N's
     /// errors-in-variables bias may be that large. Default 3: the verdict
@@ -422,7 +422,7 @@ pub enum VerdictReason {
     /// its errors-in-variables bias (doubtful): EIV's own estimate (and
     /// its fit with held noise levels released, if any) fails the
     /// plausibility guards, so there is no gap to measure
-    /// ([`crate::pooling::FallbackUnchecked`]).
+    /// (`crate::pooling::FallbackUnchecked`).
     FallbackUnchecked {
         /// The wheel noise sources whose scale EIV's fit left at its upper clamp.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -453,7 +453,7 @@ pub enum VerdictReason {
     /// (doubtful): batch G-N's errors-in-variables bias on t_r points up,
     /// so EIV's correction of it moves t_r down; an EIV t_r this far above
     /// the start is a shift the filter's model does not explain. The σ for
-    /// the next drive includes the excess ([`crate::pooling`]).
+    /// the next drive includes the excess (`crate::pooling`).
     TrackWidthAboveStart {
         /// EIV's t_r, m.
         estimate: f64,
@@ -469,7 +469,7 @@ pub enum VerdictReason {
     /// same fit without the floor lies farther away than the σ without that
     /// gap allows (doubtful): the floor is a modelling choice the data do
     /// not settle, and this parameter depends on it. The σ for the next
-    /// drive includes the gap ([`crate::pooling`], `f`).
+    /// drive includes the gap (`crate::pooling`, `f`).
     HeadingDriftFloorDisagrees {
         /// The parameter.
         param: Param,
@@ -487,7 +487,7 @@ pub enum VerdictReason {
     /// came from) left the common-mode wheel-noise scale at its upper
     /// clamp (doubtful): the drive's common-mode wheel noise is heavier
     /// than the model allows, and the σ for the next drive, whose
-    /// common-mode term grows with the fitted σ_c ([`crate::pooling`]),
+    /// common-mode term grows with the fitted σ_c (`crate::pooling`),
     /// may be too small. Not given when [`VerdictReason::FallbackUnchecked`]
     /// already names the clamp.
     HeavyCommonModeNoise {
@@ -643,7 +643,7 @@ pub(crate) struct Evidence<'a> {
     pub misspecified: usize,
     /// The batch Gauss-Newton that gives θ, when one does.
     pub identification: Option<(&'a str, &'a IdentifyReport)>,
-    /// The σ for the next drive ([`crate::pooling`]): the large-σ check's
+    /// The σ for the next drive (`crate::pooling`): the large-σ check's
     /// σ, and after an EIV fallback the gap to EIV's own estimate.
     pub next_drive: Option<&'a NextDriveSigma>,
     /// Whose model σ stands for θ, and what a checked σ needs, when no σ

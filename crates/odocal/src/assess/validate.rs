@@ -231,7 +231,7 @@ impl DriveFit {
 /// fit ([`ValidateOptions::fit_drive`]) is added by
 /// [`validate`](crate::validate()), a layer up.
 ///
-/// θ is checked first ([`Theta::validate`]: finite, c_e and t_r positive),
+/// θ is checked first (finite, c_e and t_r positive),
 /// then the options, then the drive's wheel, heading and
 /// lateral-acceleration conventions at θ, as `calibrate` checks them at θ_0.
 ///

@@ -34,7 +34,7 @@ use crate::progress::ProgressFn;
 /// # Ok(()) }
 /// ```
 ///
-/// θ is checked first ([`Theta::validate`]: finite, c_e and t_r positive),
+/// θ is checked first (finite, c_e and t_r positive),
 /// then the options, then the drive's wheel, heading and
 /// lateral-acceleration conventions at θ, as `calibrate` checks them at θ_0.
 /// A drive that cannot be fitted (too few turning segments, say) is still

@@ -258,7 +258,7 @@ pub(crate) enum EivOutcome {
 /// unconverged). When this fit passes the checks, the data contradict the
 /// held levels, and its θ stands in for EIV's own as the estimate the
 /// fallback is compared with: its gap to the fallback enters the σ for the
-/// next drive and the verdict ([`crate::pooling`]). Without the bias
+/// next drive and the verdict (`crate::pooling`). Without the bias
 /// correction (as EIV's own θ after a fallback).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(crate) struct HeldNoiseReleased {

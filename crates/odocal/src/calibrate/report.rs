@@ -38,21 +38,23 @@ pub struct SegmentCounts {
     pub validation: usize,
 }
 
-/// Wall time per stage, s.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Timing {
-    /// Whole calibration.
-    pub total: f64,
-    /// Preparation, segment selection and validation of θ_0.
-    pub setup: f64,
-    /// Step 1 (or the single batch G-N of batch-gn).
-    pub initial_identification: f64,
-    /// Step 2.
-    pub compensation: f64,
-    /// Step 3.
-    pub final_identification: f64,
-    /// Validation of the result.
-    pub validation: f64,
+research_pub! {
+    /// Wall time per stage, s.
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    struct Timing {
+        /// Whole calibration.
+        pub total: f64,
+        /// Preparation, segment selection and validation of θ_0.
+        pub setup: f64,
+        /// Step 1 (or the single batch G-N of batch-gn).
+        pub initial_identification: f64,
+        /// Step 2.
+        pub compensation: f64,
+        /// Step 3.
+        pub final_identification: f64,
+        /// Validation of the result.
+        pub validation: f64,
+    }
 }
 
 /// Validation summary of the result (SPEC §9 `validation`).
@@ -106,8 +108,8 @@ pub struct CalibrationReport {
     pub verdict: Verdict,
     /// θ_0 and its Ē_p.
     pub initial: ThetaScore,
-    /// Wall time per stage.
-    pub timing_s: Timing,
+    /// Wall time per stage (JSON `timing_s`).
+    pub(crate) timing_s: Timing,
     /// Segment counts.
     pub segments: SegmentCounts,
     /// The reference sensor's extrinsics (lever arm, heading offset:
@@ -137,9 +139,10 @@ pub struct CalibrationReport {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validate_on: Option<MultiValidation>,
     /// The σ for the next drive and its parts (within-drive, EIV fallback
-    /// gap, between-drive; [`crate::pooling`]): [`Self::result_sigma`].
+    /// gap, between-drive; docs/method.md, "The σ for the next drive"):
+    /// [`Self::result_sigma`] and JSON `next_drive_sigma`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub next_drive_sigma: Option<NextDriveSigma>,
+    pub(crate) next_drive_sigma: Option<NextDriveSigma>,
     /// The options used.
     pub options: CalibrationOptions,
 }
@@ -200,6 +203,21 @@ impl CalibrationReport {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.compensation),
             MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
+        }
+    }
+
+    research_pub! {
+        /// Wall time per stage, s (JSON `timing_s`).
+        fn timing(&self) -> Timing {
+            self.timing_s
+        }
+    }
+
+    research_pub! {
+        /// The σ for the next drive and its parts (JSON `next_drive_sigma`):
+        /// what [`Self::result_sigma`] gives, term by term.
+        fn next_drive_sigma(&self) -> Option<&NextDriveSigma> {
+            self.next_drive_sigma.as_ref()
         }
     }
 
@@ -279,7 +297,8 @@ impl CalibrationReport {
 
     /// The 1σ that stands for the result: the σ for the next drive of the
     /// same vehicle, `√(within-drive² + fallback gap²/3 + EIV t_r above its start² + between-drive²)`
-    /// per parameter ([`crate::pooling`], [`Self::next_drive_sigma`]).
+    /// per parameter (docs/method.md, "The σ for the next drive"; its parts
+    /// in JSON `next_drive_sigma`).
     /// The verdict, the parameter file ([`CalibrationReport::param_file`]),
     /// the HTML report and the CLI's JSON `sigma` all give this σ. A report
     /// without `next_drive_sigma` (written by an older odocal) gives the
@@ -401,7 +420,7 @@ pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4],
     ResultSigma { source, covers: SigmaCovers::WithinDrive, c_e: sd[0], c_d: sd[1], t_r: sd[2], d: sd[3] }
 }
 
-/// The σ for the next drive of one drive's result ([`crate::pooling`]):
+/// The σ for the next drive of one drive's result (`crate::pooling`):
 /// the within-drive σ (for a free parameter the EIV filter held at its
 /// batch Gauss-Newton start's estimate, the start's σ, when the start
 /// estimated it and found it observable: the value came from there, so it
@@ -491,7 +510,7 @@ pub(crate) fn next_drive_of(
 /// After a fallback from EIV's fit `e` whose θ fails the guards (with no
 /// passing, plausible fit with held noise levels released): the wheel
 /// noise sources at their upper clamp and the levels held
-/// ([`crate::pooling::FallbackUnchecked`]).
+/// (`crate::pooling::FallbackUnchecked`).
 fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> crate::pooling::FallbackUnchecked {
     use crate::eiv::{EivWarning, NoiseSource};
     let clamped = e
@@ -519,7 +538,7 @@ fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> c
 /// When the result is EIV's own estimate (not a refit) with t_r estimated
 /// by it and by its batch Gauss-Newton start: how far EIV's t_r lies above
 /// the start's (negative when below), with EIV's covariance
-/// ([`crate::pooling`], `a`).
+/// (`crate::pooling`, `a`).
 fn eiv_t_r_above_start(detail: &MethodDetail, free: ParamSet) -> Option<(f64, &[[f64; 4]; 4])> {
     let MethodDetail::Eiv(d) = detail else { return None };
     let e = d.eiv.as_ref()?;
@@ -533,7 +552,7 @@ fn eiv_t_r_above_start(detail: &MethodDetail, free: ParamSet) -> Option<(f64, &[
 
 /// When the result is EIV's own estimate (not a refit) and its fit holds
 /// the reference's heading drift at its floor: its θ before the bias
-/// correction and the same fit's θ without the floor ([`crate::pooling`], `f`).
+/// correction and the same fit's θ without the floor (`crate::pooling`, `f`).
 fn eiv_without_heading_drift_floor(detail: &MethodDetail) -> Option<(&Theta, &Theta)> {
     let MethodDetail::Eiv(d) = detail else { return None };
     let e = d.eiv.as_ref()?;
@@ -582,7 +601,7 @@ impl std::fmt::Display for SigmaSource {
 #[serde(rename_all = "kebab-case")]
 pub enum SigmaCovers {
     /// The spread of θ on the next drive of the same vehicle: within-drive
-    /// ⊕ between-drive ([`crate::pooling`]).
+    /// ⊕ between-drive (`crate::pooling`).
     NextDrive,
     /// This drive only: the method's within-drive σ.
     #[default]

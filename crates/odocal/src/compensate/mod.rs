@@ -48,20 +48,31 @@ use qp::{QpError, QpSolution, QpSolver, StageQp};
 
 mod qp;
 
-pub use qp::{clarabel::ClarabelOptions, riccati::StructuredOptions, SolverKind};
+pub use qp::SolverKind;
+pub(crate) use qp::{clarabel::ClarabelOptions, riccati::StructuredOptions};
 
-/// Which QP solver compensation uses, and the settings of each.
+/// Which QP solver compensation uses, and the settings of each (the
+/// solvers' tolerances and iteration limits are the library's; in JSON
+/// `structured` and `clarabel`). `QpOptions::from(SolverKind::Clarabel)`
+/// picks a solver.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct QpOptions {
     /// The solver. Default structured (Riccati interior point).
     pub solver: SolverKind,
     /// Settings of the structured solver.
     #[serde(default)]
-    pub structured: StructuredOptions,
+    pub(crate) structured: StructuredOptions,
     /// Settings of Clarabel (the solver itself, or the structured solver's
     /// fallback).
     #[serde(default)]
-    pub clarabel: ClarabelOptions,
+    pub(crate) clarabel: ClarabelOptions,
+}
+
+/// The solver `solver` with the library's settings.
+impl From<SolverKind> for QpOptions {
+    fn from(solver: SolverKind) -> Self {
+        QpOptions { solver, ..QpOptions::default() }
+    }
 }
 
 impl QpOptions {
@@ -181,7 +192,7 @@ pub(crate) struct Compensation {
     /// True when the inputs settled within the tolerance.
     pub converged: bool,
     /// Every QP that the primary solver did not solve
-    /// ([`QpError::MaxIterations`] or [`QpError::Numerical`]) and the
+    /// (`QpError::MaxIterations` or `QpError::Numerical`) and the
     /// fallback solver did.
     #[serde(default)]
     pub fallbacks: Vec<QpFallback>,
@@ -333,8 +344,8 @@ pub(crate) fn compensate_from(
             segment_start: seg.start,
             linearization: lin,
             solver: solver.name(),
-            source,
-            fallback,
+            source: Box::new(source),
+            fallback: fallback.map(|(name, e)| (name, e.to_string())),
         };
         let warm_start = if lin == 1 { first_warm } else { warm.as_ref() };
         let sol = match (solver.solve(&qp, warm_start), fallback) {

@@ -55,8 +55,11 @@ impl Theta {
     pub const PAPER_NOMINAL: Theta = Theta { c_e: 1.98, c_d: 0.0, t_r: 1.55, d: 0.0 };
     /// The paper's Gauss-Newton initial guess θ_0 = `[2.0, 0, 1.6, 0]`.
     pub const PAPER_INITIAL: Theta = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.6, d: 0.0 };
-    /// The simulator's default true parameters `[1.950, −2.0 mm, 1.530, 0.8 mm/(m/s²)]`.
-    pub const SIM_DEFAULT_TRUE: Theta = Theta { c_e: 1.950, c_d: -0.002, t_r: 1.530, d: 0.0008 };
+    research_pub! {
+        /// The simulator's default true parameters `[1.950, −2.0 mm, 1.530, 0.8 mm/(m/s²)]`
+        /// (outside the crate: `SimOptions::default().theta_true`).
+        const SIM_DEFAULT_TRUE: Theta = Theta { c_e: 1.950, c_d: -0.002, t_r: 1.530, d: 0.0008 };
+    }
 
     /// Builds θ from `[c_e, c_d, t_r, d]`.
     pub(crate) fn from_vector(v: &Vector4<f64>) -> Self {
@@ -87,8 +90,9 @@ impl Theta {
         (self.c_e + self.c_d / 2.0 + self.d * a_y, self.c_e - self.c_d / 2.0 - self.d * a_y)
     }
 
-    /// Checks that θ is usable: all finite, `c_e > 0` and `t_r > 0`.
-    pub fn validate(&self) -> Result<()> {
+    /// Checks that θ is usable: all finite, `c_e > 0` and `t_r > 0`
+    /// (outside the crate: [`Theta::check_physical_limits`], which includes it).
+    pub(crate) fn validate(&self) -> Result<()> {
         for (name, v) in THETA_NAMES.iter().zip(self.to_array()) {
             if !v.is_finite() {
                 return Err(Error::InvalidTheta(format!("{name} = {v} is not finite")));

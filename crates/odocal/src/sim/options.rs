@@ -453,7 +453,7 @@ pub struct SimOptions {
     pub sample_rate_hz: f64,
     /// Fine integration steps of the truth per output sample. Default 10.
     pub substeps: usize,
-    /// The true parameters θ. Default [`Theta::SIM_DEFAULT_TRUE`].
+    /// The true parameters θ. Default `[1.950, −2.0 mm, 1.530, 0.8 mm/(m/s²)]`.
     pub theta_true: Theta,
     /// Route generator. Default `RouteOptions::default`.
     pub route: RouteOptions,

@@ -29,7 +29,7 @@ use super::{a_matrix, QpError, QpSolution, QpSolver, StageQp};
 /// Settings of the Clarabel solver ([`SolverKind::Clarabel`](super::SolverKind::Clarabel),
 /// and the structured solver's fallback).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ClarabelOptions {
+pub(crate) struct ClarabelOptions {
     /// Absolute and relative duality-gap tolerance (Clarabel `tol_gap_abs`,
     /// `tol_gap_rel`). Default 1e-10: this solver is the reference, and
     /// Clarabel's criteria are relative to the data scale (R = 1000).

@@ -796,8 +796,8 @@ impl Manifest {
 
     /// The time column of stream `stream` (`streams.<stream>.time_column`;
     /// `None` for an unknown stream or an MCAP source, whose messages carry
-    /// their own time).
-    pub fn time_column(&self, stream: &str) -> Option<&str> {
+    /// their own time; outside the crate: [`crate::io::RawStream::columns`]).
+    pub(crate) fn time_column(&self, stream: &str) -> Option<&str> {
         self.streams.get(stream)?.time_column.as_deref()
     }
 

@@ -10,7 +10,7 @@ pub struct ImportReport {
     /// The manifest.
     pub manifest: PathBuf,
     /// Streams read.
-    pub streams: Vec<StreamReport>,
+    pub(crate) streams: Vec<StreamReport>,
     /// Output rate, Hz.
     pub output_rate_hz: f64,
     /// Wheel-clock time of the drive's t = 0, s (stream time units after
@@ -21,9 +21,9 @@ pub struct ImportReport {
     /// Clock offset between the wheel and pose streams.
     pub clock_offset: ClockOffsetReport,
     /// Intervals without valid output samples, with reasons.
-    pub gaps: Vec<GapRecord>,
+    pub(crate) gaps: Vec<GapRecord>,
     /// Continuous parts, kept and dropped.
-    pub parts: Vec<PartRecord>,
+    pub(crate) parts: Vec<PartRecord>,
     /// Samples in the imported drive (kept parts).
     pub samples: usize,
     /// Duration of the kept parts, s.
@@ -53,22 +53,22 @@ pub struct ImportReport {
 
 /// One stream that was read.
 #[derive(Debug, Clone, Serialize)]
-pub struct StreamReport {
+pub(crate) struct StreamReport {
     /// Name in the manifest.
-    pub name: String,
+    pub(crate) name: String,
     /// The file.
-    pub file: PathBuf,
+    pub(crate) file: PathBuf,
     /// Data rows read.
-    pub rows: usize,
+    pub(crate) rows: usize,
     /// Rows dropped because their time stamp repeated the previous one.
-    pub repeated_stamps_dropped: usize,
+    pub(crate) repeated_stamps_dropped: usize,
     /// Wheel rows dropped as corrupt: a counter jump beyond
     /// `limits.max_speed_m_per_s` that returns within a few rows.
-    pub corrupt_rows_dropped: usize,
+    pub(crate) corrupt_rows_dropped: usize,
     /// First and last time, s (after `time_offset_s`, before the clock offset).
-    pub time_span_s: [f64; 2],
+    pub(crate) time_span_s: [f64; 2],
     /// Mean sample rate, Hz.
-    pub mean_rate_hz: f64,
+    pub(crate) mean_rate_hz: f64,
     /// De-jittering, when the stream has a nominal rate.
     pub(crate) dejitter: Option<DejitterReport>,
 }
@@ -140,14 +140,14 @@ pub struct ClockOffsetReport {
 /// An interval without valid samples, measured as a part is
 /// ([`PartRecord`]): each invalid sample stands for one output step.
 #[derive(Debug, Clone, Serialize)]
-pub struct GapRecord {
+pub(crate) struct GapRecord {
     /// Start: the first invalid sample's time, s (relative to the origin).
-    pub t_start_s: f64,
+    pub(crate) t_start_s: f64,
     /// End: the last invalid sample's time plus one output step, where the
     /// next part starts, s.
-    pub t_end_s: f64,
+    pub(crate) t_end_s: f64,
     /// Why (the distinct reasons of the invalid samples).
-    pub reasons: Vec<String>,
+    pub(crate) reasons: Vec<String>,
 }
 
 /// A continuous run of valid samples. Its duration is its samples times
@@ -157,17 +157,17 @@ pub struct GapRecord {
 /// ends where the next gap starts. The text gives times and durations to
 /// the millisecond, which at 40 Hz (a 25 ms step) is exact.
 #[derive(Debug, Clone, Serialize)]
-pub struct PartRecord {
+pub(crate) struct PartRecord {
     /// Start: the first sample's time, s (relative to the origin).
-    pub t_start_s: f64,
+    pub(crate) t_start_s: f64,
     /// End: the last sample's time plus one output step, s.
-    pub t_end_s: f64,
+    pub(crate) t_end_s: f64,
     /// Samples.
-    pub samples: usize,
+    pub(crate) samples: usize,
     /// Kept in the drive?
-    pub kept: bool,
+    pub(crate) kept: bool,
     /// Why it was dropped.
-    pub dropped_because: Option<String>,
+    pub(crate) dropped_because: Option<String>,
 }
 
 impl PartRecord {

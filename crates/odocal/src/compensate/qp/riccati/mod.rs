@@ -59,7 +59,7 @@ use stage::{
 
 /// Options of the structured solver ([`SolverKind::Structured`](super::SolverKind::Structured)).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct StructuredOptions {
+pub(crate) struct StructuredOptions {
     /// Relative tolerance on the primal residuals (dynamics and slack
     /// definitions), scaled by `1 + max|c_k|, |bounds|`. Default 1e-6.
     pub tol_primal: f64,

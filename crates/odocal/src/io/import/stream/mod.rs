@@ -135,7 +135,7 @@ pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
 /// let manifest = odocal::Manifest::from_path(path.as_ref())?;
 /// let mut raw = RawStream::new(&manifest, StreamOptions::default())?;
 /// // Each stream's file row by row, as a live system would send its messages.
-/// let streams: Vec<(String, Vec<String>)> = raw.columns().map(|(n, c)| (n.to_string(), c.to_vec())).collect();
+/// let streams: Vec<(String, Vec<String>)> = raw.columns().map(|(n, _, c)| (n.to_string(), c.to_vec())).collect();
 /// for (name, file) in manifest.stream_files() {
 ///     let cols = &streams.iter().find(|(n, _)| *n == name).ok_or("stream")?.1;
 ///     let text = std::fs::read_to_string(file)?;
@@ -213,10 +213,11 @@ impl RawStream {
         })
     }
 
-    /// The streams the manifest reads, with the columns each message
-    /// carries, in the order [`RawStream::push_message`] takes them.
-    pub fn columns(&self) -> impl Iterator<Item = (&str, &[String])> {
-        self.streams.iter().map(|(n, (_, c))| (n.as_str(), c.as_slice()))
+    /// The streams the manifest reads: each one's name, its time column
+    /// (`streams.<name>.time_column`) and the columns each message carries,
+    /// in the order [`RawStream::push_message`] takes them.
+    pub fn columns(&self) -> impl Iterator<Item = (&str, Option<&str>, &[String])> {
+        self.streams.iter().map(|(n, (_, c))| (n.as_str(), self.m.time_column(n), c.as_slice()))
     }
 
     /// Takes one message of stream `stream`: its time `t` in the stream's

@@ -137,7 +137,7 @@ impl ManifestStream {
     pub(crate) fn open(manifest: &Manifest, opts: StreamOptions) -> Result<ManifestStream> {
         let raw = RawStream::new(manifest, opts)?;
         let mut files = Vec::new();
-        for (name, cols) in raw.columns() {
+        for (name, _, cols) in raw.columns() {
             files.push(CsvRows::open(manifest, name, cols)?);
         }
         Ok(ManifestStream { raw, files, finished: false })
