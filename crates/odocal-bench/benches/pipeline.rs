@@ -82,11 +82,9 @@ fn bench_eiv(c: &mut Criterion) {
     };
     for km in [12.0, 24.0, 48.0] {
         let d = drive(km);
-        for (name, method) in [
-            ("batch_gn", Method::BatchGn(Default::default())),
-            ("eiv_fixed_noise", eiv(true)),
-            ("eiv_estimated_noise", eiv(false)),
-        ] {
+        for (name, method) in
+            [("batch_gn", Method::BatchGn), ("eiv_fixed_noise", eiv(true)), ("eiv_estimated_noise", eiv(false))]
+        {
             let opts = CalibrationOptions { method, ..Default::default() };
             g.bench_with_input(BenchmarkId::new(name, format!("{km}km")), &d, |b, d| {
                 b.iter(|| calibrate(d, &opts).expect("calibrate"))

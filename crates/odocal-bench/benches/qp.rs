@@ -19,8 +19,8 @@ const SEGMENTS: usize = 4;
 
 fn qp_solve(c: &mut Criterion) {
     let drive = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(1) }).expect("simulate").drive;
-    let selection = calibration_segments(&drive, &SegmentOptions::default()).expect("segments");
-    let segments: Vec<_> = selection.selected.iter().take(SEGMENTS).cloned().collect();
+    let selected = calibration_segments(&drive, &SegmentOptions::default()).expect("segments");
+    let segments: Vec<_> = selected.iter().take(SEGMENTS).cloned().collect();
     let thetas = [Theta::PAPER_INITIAL];
     let mut group = c.benchmark_group("compensate_4_segments_k650");
     group.sample_size(10);

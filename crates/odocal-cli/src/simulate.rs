@@ -160,15 +160,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     out.drive.write_csv(&a.out)?;
     out.sidecar.write_beside(&a.out)?;
     if a.noise.starts_with("random:") {
-        let w = sim::WorldSummary::from(&o.noise);
-        println!(
-            "noise world {}: {} ({}), wheel error per sample {:.2} % white, {:.2} % common-mode and slip",
-            a.noise,
-            w.regime,
-            if w.white_only { "white noise only" } else { "every source drawn" },
-            w.wheel_white_rel * 100.0,
-            w.wheel_common_slip_rel * 100.0
-        );
+        println!("noise world {}: {}", a.noise, o.noise.world_summary());
     }
     let s = &out.sidecar.stats;
     println!(

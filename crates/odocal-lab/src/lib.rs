@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
+use odocal::segment::{SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions, SimOutput};
 use odocal::{CalibrationOptions, Drive, Method, Theta};
 
@@ -138,8 +138,9 @@ impl Args {
 /// that the programs run through `odocal::eiv::estimate` directly (the EIV
 /// method of `calibrate` also estimates the reference heading offset).
 pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
-    let sel = calibration_segments(drive, &SegmentOptions::default())?;
-    let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(drive, s)).collect();
+    let o = SegmentOptions::default();
+    let all = odocal::segment::cut(drive, o.offset_steps, o.length_steps, o.stride_steps);
+    let data: Vec<SegmentData> = all.iter().map(|s| SegmentData::new(drive, s)).collect();
     let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
     Ok(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?.theta)
 }
@@ -214,7 +215,7 @@ pub fn with_signals(drive: &Drive, signals: odocal::Signals) -> Result<Drive, od
 /// Batch Gauss-Newton on every cut segment (`--method batch-gn
 /// --min-yaw-rate 0`), with d held at θ_0 when `hold_d`.
 pub fn batch_gn_all_options(hold_d: bool) -> CalibrationOptions {
-    let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let mut o = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
     if hold_d {
         o.identify.free = o.identify.free.without(odocal::Param::D);

@@ -400,7 +400,7 @@ fn a_threshold_of_zero_folds_every_segment_of_a_straight_drive() {
         (cal.drive_summary().folded_segments, cal.status().informative_time_s, cal.theta())
     };
     let selected = |d: &Drive, opts: &OnlineOptions| {
-        odocal::segment::calibration_segments(d, &opts.segments).expect("segments").selected.len()
+        odocal::segment::calibration_segments(d, &opts.segments).expect("segments").len()
     };
     let every = OnlineOptions { informative_yaw_rate_rad_per_s: 0.0, ..OnlineOptions::default() };
     let (count, informative, theta) = folded(&straight, every.clone());
@@ -417,7 +417,8 @@ fn a_threshold_of_zero_folds_every_segment_of_a_straight_drive() {
     assert_eq!(folded(&straight, above).0, 0);
 
     let (turning, _) = noise_free(3.0, 2);
-    let all = odocal::segment::calibration_segments(&turning, &every.segments).expect("segments").all;
+    let o = &every.segments;
+    let all = odocal::segment::cut(&turning, o.offset_steps, o.length_steps, o.stride_steps);
     for peak in [all[3].peak_yaw_rate_rad_per_s, 0.15] {
         let opts = OnlineOptions {
             segments: SegmentOptions { min_peak_yaw_rate_rad_per_s: peak, ..OnlineOptions::default().segments },

@@ -8,7 +8,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out_path = std::env::args().nth(1).unwrap_or_else(|| "report.html".into());
     let out = sim::simulate(&sim::SimOptions { length_km: 6.0, ..sim::SimOptions::paper(1) })?;
     let drive = &out.drive;
-    let opts = odocal::CalibrationOptions { method: odocal::Method::BatchGn(Default::default()), ..Default::default() };
+    let opts = odocal::CalibrationOptions { method: odocal::Method::BatchGn, ..Default::default() };
     let report = odocal::calibrate(drive, &opts)?;
     let segs = segment::validation_segments(drive, &Default::default())?;
     let truth = out.sidecar.theta_true;

@@ -596,7 +596,7 @@ mod tests {
         let out = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::paper(2) }).expect("sim");
         let segs = segment::validation_segments(&out.drive, &Default::default()).expect("segments");
         for (method, want) in [
-            (odocal::Method::BatchGn(Default::default()), ["batch G-N: ", "robust σ: "]),
+            (odocal::Method::BatchGn, ["batch G-N: ", "robust σ: "]),
             (odocal::Method::ThreeStep(Default::default()), ["step 2: ", "step 3: "]),
         ] {
             let opts = odocal::CalibrationOptions { method, ..Default::default() };

@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use odocal::segment::{calibration_segments, validation_segments};
+use odocal::segment::{calibration_segments, cut, validation_segments, SegmentOptions};
 use odocal::{import, Manifest};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -20,12 +20,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let imported = import(&m)?;
     // Streams, clock offset, gaps and the continuous parts kept.
     println!("{}", imported.report);
-    let sel = calibration_segments(&imported.drive, &Default::default())?;
+    let o = SegmentOptions::default();
+    let all = cut(&imported.drive, o.offset_steps, o.length_steps, o.stride_steps);
+    let selected = calibration_segments(&imported.drive, &o)?;
     let val = validation_segments(&imported.drive, &Default::default())?;
     println!(
         "segments (SPEC defaults): {} cut, {} selected (peak yaw rate ≥ 0.15 rad/s); {} validation segments",
-        sel.all.len(),
-        sel.selected.len(),
+        all.len(),
+        selected.len(),
         val.len()
     );
     if let Some(out) = args.get(2) {

@@ -766,7 +766,7 @@ mod tests {
         let err = e.final_estimate.error_vs_true.expect("truth known");
         assert!(err.c_e.abs() < 0.05, "{err:?}");
         let batch_gn = ExperimentOptions {
-            calibration: CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() },
+            calibration: CalibrationOptions { method: Method::BatchGn, ..Default::default() },
             ..ExperimentOptions::default()
         };
         let e = run(&sim.drive, None, &batch_gn, None).expect_err("three-step only");

@@ -86,10 +86,10 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::{calibrate, sim, BatchGnOptions, CalibrationOptions, Method};
+//! use odocal::{calibrate, sim, CalibrationOptions, Method};
 //! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
-//! let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions::default()), ..Default::default() };
+//! let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
 //! let report = calibrate(&sim.drive, &opts)?;
 //! assert!((report.theta.t_r - sim.sidecar.theta_true.t_r).abs() < 1e-6);
 //! # Ok(()) }
@@ -184,7 +184,6 @@ pub use io::param_file::{ParamFile, ParamMapping};
 // Calibration: the entry points, the options, the report. `settings` is an
 // expert module.
 pub use calibrate::{
-    batch_gn::BatchGnOptions,
     calibrate,
     drive_fit::validate,
     eiv::{CorrectBias, EivMethodOptions},

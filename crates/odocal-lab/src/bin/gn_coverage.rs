@@ -95,7 +95,7 @@ fn run() -> Res<()> {
                 };
                 let drive = simulate(&sim)?.drive;
                 let sel = calibration_segments(&drive, &Default::default())?;
-                let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&drive, s)).collect();
+                let data: Vec<SegmentData> = sel.iter().map(|s| SegmentData::new(&drive, s)).collect();
                 segs += data.len();
                 if kind == "three-step" {
                     // The default 3-step calibration; its σ are step 3's.

@@ -44,7 +44,7 @@ const REAL: [&str; 8] = [
 ];
 
 fn real() -> Res<()> {
-    let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let mut o = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset);
     let mut table = Table::new(&["drive", "σ_w", "predicted bias / σ: c_e", "c_d", "t_r", "d", "verdict"]);
     for path in REAL {
@@ -97,7 +97,7 @@ fn real() -> Res<()> {
 /// predicted bias over σ, and the estimated against the simulated σ_w.
 fn worlds(first: u64, n: u64, km: f64) -> Res<()> {
     use odocal::sim::{simulate, NoiseOptions, SimOptions};
-    let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let mut o = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset);
     let mut table = Table::new(&["world", "regime", "σ_w est / sim", "error / σ", "predicted / σ", "verdict"]);
     let (mut worlds, mut covered, mut accepted_beyond, mut width) = (0usize, [0usize; 4], 0usize, vec![Vec::new(); 4]);
@@ -165,7 +165,7 @@ fn run() -> Res<()> {
     let seeds: u64 = args.pos(0, 20)?;
     let km: f64 = args.pos(1, 12.0)?;
     let presets: String = args.pos(2, "paper,white,coloured,high".to_string())?;
-    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let mut table = Table::new(&[
         "preset",
         "c_e: error / predicted (σ)",

@@ -44,7 +44,7 @@ fn run() -> Res<()> {
     rayon::ThreadPoolBuilder::new().num_threads(1).build_global()?;
     let drive = simulate_preset("paper", km, seed)?.drive;
     let selection = calibration_segments(&drive, &SegmentOptions::default())?;
-    let segments: Vec<_> = selection.selected.iter().take(count).cloned().collect();
+    let segments: Vec<_> = selection.iter().take(count).cloned().collect();
     let thetas = [batch_gn_all(&drive)?, Theta::PAPER_INITIAL];
     let out =
         compensate_segments(&drive, &segments, &thetas, &CompensateOptions::default(), &QpOptions::default(), None)?;

@@ -13,10 +13,10 @@ use crate::error::Result;
 use crate::identify::{batch_gauss_newton_drives, IdentifyReport};
 use crate::progress::{emit, Progress, ProgressFn};
 
-/// Settings of batch Gauss-Newton beyond the shared ones (none yet: the
-/// Gauss-Newton settings are [`super::CalibrationOptions::identify`]).
-#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
-pub struct BatchGnOptions {}
+/// Batch Gauss-Newton as a method ([`super::Method::BatchGn`]; its
+/// settings are [`super::CalibrationOptions::identify`]).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub(crate) struct BatchGnOptions {}
 
 /// What batch Gauss-Newton reports.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -2,7 +2,6 @@
 //! ([`crate::assess::validate`]), judged against θ fitted on the same
 //! drive ([`DriveFit`]).
 
-use super::batch_gn::BatchGnOptions;
 use super::eiv::EivOutcome;
 use super::{calibrate, CalibrationOptions, Method, MethodDetail};
 use crate::assess::trust::VerdictReason;
@@ -94,7 +93,7 @@ fn drive_fit(
     opts: &ValidateOptions,
     given_m: f64,
 ) -> std::result::Result<DriveFit, String> {
-    let batch_gn = Method::BatchGn(BatchGnOptions::default());
+    let batch_gn = Method::BatchGn;
     let mut starts = vec![("θ", *theta), ("θ_0", Theta::PAPER_INITIAL)];
     starts.retain(|(_, t)| t.check_physical_limits().is_ok());
     let mut best: Option<(DriveFit, ParamSet)> = None;
@@ -257,7 +256,7 @@ mod tests {
     #[test]
     fn a_theta_at_the_drive_s_optimum_fits_with_a_ratio_of_one() {
         let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(3) }).expect("sim");
-        let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions::default()), ..Default::default() };
+        let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
         let own = calibrate(&out.drive, &opts).expect("calibrate").theta;
         let r = validate(&out.drive, &own, &ValidateOptions::default(), None).expect("validate");
         let fit = r.drive_fit.as_ref().unwrap_or_else(|| panic!("no fit: {:?}", r.drive_fit_error));

@@ -6,7 +6,7 @@
 use super::*;
 use crate::assess::trust::VerdictReason;
 use crate::assess::warning::Warning;
-use crate::calibrate::{BatchGnOptions, MethodDetail, Timing};
+use crate::calibrate::{MethodDetail, Timing};
 use crate::eiv::{EivOptions, EivWarning, NoiseModel};
 use crate::model::Theta;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
@@ -63,7 +63,7 @@ fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
         simulate(&SimOptions { length_km: 12.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(3) })
             .expect("sim");
     let truth = out.sidecar.theta_true;
-    let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let mut opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     opts.segments.min_peak_yaw_rate_rad_per_s = 0.0;
     let gn = calibrate(&out.drive, &opts).expect("batch-gn");
     let known = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());

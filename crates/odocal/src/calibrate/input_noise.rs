@@ -179,8 +179,8 @@ research_pub! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibrate::{calibrate, BatchGnOptions, CalibrationOptions, Method};
-    use crate::drive::segment::{calibration_segments, SegmentOptions};
+    use crate::calibrate::{calibrate, CalibrationOptions, Method};
+    use crate::drive::segment::{select_segments, SegmentOptions};
     use crate::identify::batch_gauss_newton;
     use crate::sim::{simulate, NoiseOptions, SimOptions};
 
@@ -190,7 +190,7 @@ mod tests {
     }
 
     fn batch_gn() -> CalibrationOptions {
-        CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() }
+        CalibrationOptions { method: Method::BatchGn, ..Default::default() }
     }
 
     fn reason(r: &crate::CalibrationReport) -> Option<VerdictReason> {
@@ -204,14 +204,14 @@ mod tests {
     fn the_wheel_noise_estimate_recovers_the_simulated_level() {
         for (preset, truth) in [("white", 0.008), ("high", 0.02)] {
             let d = drive(preset, 3);
-            let sel = calibration_segments(&d, &SegmentOptions::default()).expect("segments");
+            let sel = select_segments(&d, &SegmentOptions::default()).expect("segments");
             let data: Vec<SegmentData<'_>> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
             let fit = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions::default()).expect("fit");
             let est = wheel_white_noise(&data, &fit.theta).expect("an estimate");
             assert!((est / truth - 1.0).abs() < 0.25, "{preset}: σ_w {est} against {truth}");
         }
         let d = simulate(&SimOptions { length_km: 8.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
-        let sel = calibration_segments(&d, &SegmentOptions::default()).expect("segments");
+        let sel = select_segments(&d, &SegmentOptions::default()).expect("segments");
         let data: Vec<SegmentData<'_>> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
         let truth = SimOptions::noise_free(3).theta_true;
         assert!(wheel_white_noise(&data, &truth).is_none_or(|s| s < 1e-4), "noise-free wheels");
@@ -247,7 +247,7 @@ mod tests {
     #[test]
     fn the_predicted_bias_does_not_depend_on_the_threads() {
         let d = drive("paper", 6);
-        let sel = calibration_segments(&d, &SegmentOptions::default()).expect("segments");
+        let sel = select_segments(&d, &SegmentOptions::default()).expect("segments");
         let data: Vec<SegmentData<'_>> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
         let o = IdentifyOptions::default();
         let theta = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &o).expect("fit").theta;

@@ -101,8 +101,9 @@ pub(crate) use three_step::{FinalSegments, ThreeStepOptions};
 pub enum Method {
     /// The paper's 3-step method with input compensation.
     ThreeStep(ThreeStepOptions),
-    /// Raw batch Gauss-Newton over all selected segments.
-    BatchGn(BatchGnOptions),
+    /// Raw batch Gauss-Newton over all selected segments (its settings are
+    /// [`CalibrationOptions::identify`]).
+    BatchGn,
     /// Errors-in-variables filter over every drive part (SPEC §10), started
     /// from batch G-N on all segments and falling back to it when its
     /// consistency checks fail (default: docs/validation.md measures it against
@@ -131,7 +132,7 @@ impl Method {
     pub(crate) fn from_name(name: &str) -> Result<Method> {
         match name.trim() {
             "three-step" => Ok(Method::ThreeStep(ThreeStepOptions::default())),
-            "batch-gn" => Ok(Method::BatchGn(BatchGnOptions::default())),
+            "batch-gn" => Ok(Method::BatchGn),
             "eiv" => Ok(Method::Eiv(EivMethodOptions::default())),
             _ => Err(Error::Parse { what: "method", input: name.to_string(), expected: "three-step, batch-gn or eiv" }),
         }
@@ -145,7 +146,7 @@ impl Method {
     pub(crate) fn estimator(&self) -> &dyn Estimator {
         match self {
             Method::ThreeStep(o) => o,
-            Method::BatchGn(o) => o,
+            Method::BatchGn => &BatchGnOptions {},
             Method::Eiv(o) => o,
         }
     }

@@ -347,7 +347,7 @@ impl CalibrationReport {
                 reason: "the report has no σ for the next drive to pool into".into(),
             });
         };
-        let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..self.options.clone() };
+        let mut o = CalibrationOptions { method: Method::BatchGn, ..self.options.clone() };
         o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
         o.auto_fix = false;
         o.trust.max_split_sigmas = 0.0;

@@ -3,7 +3,7 @@
 //! auto-fix the parameters held because the drive does not show them.
 
 use crate::assess::warning::Warning;
-use crate::drive::segment::{calibration_segments, Segment, SegmentData, SegmentOptions, SegmentSelection};
+use crate::drive::segment::{select_segments, Segment, SegmentData, SegmentOptions, SegmentSelection};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::identify::{batch_normal_equations, observability, IdentifyOptions};
@@ -35,10 +35,10 @@ impl Selection {
     }
 }
 
-/// The calibration segments of every method ([`calibration_segments`]), or
+/// The calibration segments of every method ([`select_segments`]), or
 /// an error saying why the drive has none.
 pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<SegmentSelection> {
-    let selection = calibration_segments(drive, opts)?;
+    let selection = select_segments(drive, opts)?;
     if selection.all.is_empty() {
         return Err(Error::NoSegments(format!(
             "the drive has {} samples in {} part(s); a calibration segment needs {} samples (segment_length {} \

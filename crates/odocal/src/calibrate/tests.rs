@@ -5,7 +5,7 @@ use super::*;
 use crate::compensate::QpOptions;
 use crate::compensate::SolverKind;
 use crate::drive::segment::{
-    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
+    select_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };
 use crate::identify::IdentifyOptions;
 use crate::model::param::ParamSet;
@@ -19,7 +19,7 @@ const EXACT_REL_TOL: f64 = 1e-6;
 fn per_segment_and_batch_helpers() {
     let sim = simulate(&SimOptions { length_km: 2.0, substeps: 1, ..SimOptions::noise_free(4) }).expect("sim");
     let drive = &sim.drive;
-    let sel = calibration_segments(drive, &SegmentOptions::default()).expect("segments");
+    let sel = select_segments(drive, &SegmentOptions::default()).expect("segments");
     let val = validation_segments(drive, &ValidationSegmentOptions::default()).expect("validation");
     let segs: Vec<Segment> = sel.selected.clone();
     assert!(segs.len() >= 3, "the drive turns");
@@ -95,7 +95,7 @@ fn three_step_noise_free_recovers_truth() {
 fn holdout_with_estimated_extrinsics_is_judged_without_panicking() {
     let drive = simulate(&SimOptions { length_km: 2.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
     let identify = IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
-    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, identify, ..Default::default() };
     let r =
         Calibration { holdout: Some(&Holdout::FirstHalf), ..Calibration::new(&drive, &opts) }.run().expect("calibrate");
     let x = r.extrinsics.as_ref().expect("extrinsics estimated");
@@ -111,7 +111,7 @@ fn the_param_file_labels_the_extrinsics_sigma_with_its_kind() {
     let drive = simulate(&SimOptions { length_km: 2.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
     let free = ParamSet::THETA.union(ParamSet::EMPTY.with(Param::HeadingOffset));
     let identify = IdentifyOptions { free, ..Default::default() };
-    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, identify, ..Default::default() };
     let mut r = calibrate(&drive, &opts).expect("calibrate");
     let label = |r: &crate::CalibrationReport| {
         let f = r.param_file("drive.csv");
@@ -313,7 +313,7 @@ fn method_settings_and_report_detail_in_json() {
     let back: CalibrationReport = serde_json::from_value(v).expect("round trip");
     assert_eq!(back, r);
 
-    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let r = calibrate(&drive, &opts).expect("batch-gn");
     let v = serde_json::to_value(&r).expect("json");
     assert_eq!(v["method"], "batch-gn");
@@ -395,7 +395,7 @@ fn implausible_step1_batches_are_never_picked() {
 #[test]
 fn every_report_has_a_verdict() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
-    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     // 3 km: no cluster-robust σ (a_result_with_only_the_model_sigma_is_doubtful),
     // and the paper's wheel noise biases t_r beyond its σ (calibrate::input_noise).
@@ -436,7 +436,7 @@ fn every_report_has_a_verdict() {
 fn an_unconverged_gauss_newton_result_is_doubtful() {
     use crate::assess::trust::VerdictReason;
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
-    let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let mut opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     opts.identify.max_iterations = 1;
     let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     let reason = r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::NotConverged { .. }));
@@ -468,7 +468,7 @@ fn three_step_result_covariance_is_the_batch_spread() {
     }
     assert!(r.robust().is_none(), "robust() stays batch-gn's");
     // batch-gn: the cluster-robust covariance, when computed
-    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     assert_eq!(r.result_covariance(), r.robust().map(|x| &x.covariance));
 }
@@ -576,7 +576,7 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     assert!(f.provenance.contains(&("sigma_covers".into(), covers)), "{:?}", f.provenance);
     assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
 
-    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let mut r = calibrate(&sim.drive, &opts).expect("batch-gn");
     // 3 km: too few clusters for the cluster-robust σ, so the model σ, and labelled so
     assert!(r.robust().is_none());
@@ -603,7 +603,7 @@ fn drives_fitted_jointly_give_the_between_drive_sigma_unless_a_half_is_held_out(
         (1..=2).map(|s| simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(s) }).expect("sim").drive).collect();
     let parts: Vec<&Drive> = sims.iter().collect();
     let joined = Drive::concat(&parts).expect("concat");
-    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let source = |r: &CalibrationReport| r.next_drive_sigma.as_ref().map(|n| n.between_source);
     let alone = Calibration::new(&joined, &opts).run().expect("joint fit");
     assert_eq!(source(&alone), Some(BetweenDriveSource::Prior));
@@ -636,7 +636,7 @@ fn drives_fitted_jointly_give_the_between_drive_sigma_unless_a_half_is_held_out(
 #[test]
 fn a_result_with_only_the_model_sigma_is_doubtful() {
     use crate::assess::trust::VerdictReason;
-    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let short = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let r = calibrate(&short.drive, &opts).expect("batch-gn");
     assert!(r.robust().is_none());
@@ -671,7 +671,7 @@ fn a_held_heading_offset_that_moves_theta_is_doubtful() {
     let held = |r: &CalibrationReport| {
         r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::HeadingOffsetHeld { .. })).cloned()
     };
-    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
     let off = drive(0.015);
     let r = calibrate(&off, &opts).expect("batch-gn, δ held");
     let Some(VerdictReason::HeadingOffsetHeld { drive: None, held: h, fitted, sigma, param, shift_sigmas, .. }) =

@@ -612,7 +612,7 @@ mod forced_divergence_tests {
     use super::*;
     use crate::assess::trust::GuardViolation;
     use crate::calibrate::{calibrate, CalibrationOptions, Method};
-    use crate::drive::segment::calibration_segments;
+    use crate::drive::segment::select_segments;
     use crate::sim::{simulate, SimOptions};
 
     /// A step-1 batch of the ten straightest segments cannot determine c_d,
@@ -631,7 +631,7 @@ mod forced_divergence_tests {
             ..Default::default()
         };
         // The ten straightest segments of the drive (none of them selected).
-        let mut all = calibration_segments(&sim.drive, &opts.segments).expect("segments").all;
+        let mut all = select_segments(&sim.drive, &opts.segments).expect("segments").all;
         all.sort_by(|a, b| a.peak_yaw_rate_rad_per_s.total_cmp(&b.peak_yaw_rate_rad_per_s));
         let mut straight: Vec<Segment> = all[..10].to_vec();
         straight.sort_by_key(|s| s.start);

@@ -809,7 +809,7 @@ mod solver_tests {
     use super::*;
     use crate::compensate::qp::clarabel::ClarabelSolver;
     use crate::compensate::qp::riccati::StructuredSolver;
-    use crate::drive::segment::{calibration_segments, SegmentOptions};
+    use crate::drive::segment::{select_segments, SegmentOptions};
     use crate::sim::{simulate, SimOptions};
 
     /// Relative objective agreement of the two solvers (both stop at ~1e-9
@@ -825,7 +825,7 @@ mod solver_tests {
     #[test]
     fn standstill_segment_structured_equals_clarabel() {
         let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(2) }).unwrap().drive;
-        let sel = calibration_segments(&drive, &SegmentOptions::default()).unwrap();
+        let sel = select_segments(&drive, &SegmentOptions::default()).unwrap();
         let seg = sel.all.iter().find(|s| s.start == 6700).expect("segment at 6700");
         let data = SegmentData::new(&drive, seg);
         let stopped = (0..data.steps()).filter(|&k| data.n_rl[k] == 0.0 && data.n_rr[k] == 0.0).count();
@@ -881,7 +881,7 @@ mod solver_tests {
     #[test]
     fn fallback_is_recorded_and_infeasible_is_not_retried() {
         let drive = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(3) }).unwrap().drive;
-        let sel = calibration_segments(&drive, &SegmentOptions::default()).unwrap();
+        let sel = select_segments(&drive, &SegmentOptions::default()).unwrap();
         let data = SegmentData::new(&drive, &sel.all[0]);
         let opts = CompensateOptions::default();
         let fb = StructuredSolver::tight();

@@ -156,15 +156,23 @@ pub fn cut(drive: &Drive, offset: usize, length: usize, stride: usize) -> Vec<Se
 
 /// All calibration segments of a drive and those selected by yaw rate.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SegmentSelection {
+pub(crate) struct SegmentSelection {
     /// Every segment cut.
     pub all: Vec<Segment>,
     /// The segments whose peak yaw rate reaches the threshold (is at least it).
     pub selected: Vec<Segment>,
 }
 
-/// Cuts calibration segments and selects those that turn enough.
-pub fn calibration_segments(drive: &Drive, opts: &SegmentOptions) -> Result<SegmentSelection> {
+/// Cuts calibration segments and selects those that turn enough: the
+/// segments whose peak yaw rate reaches
+/// [`SegmentOptions::min_peak_yaw_rate_rad_per_s`] (is at least it), of
+/// those [`cut`] gives with the options' offset, length and stride.
+pub fn calibration_segments(drive: &Drive, opts: &SegmentOptions) -> Result<Vec<Segment>> {
+    Ok(select_segments(drive, opts)?.selected)
+}
+
+/// [`calibration_segments`] with every segment cut beside those selected.
+pub(crate) fn select_segments(drive: &Drive, opts: &SegmentOptions) -> Result<SegmentSelection> {
     opts.validate()?;
     let all = cut(drive, opts.offset_steps, opts.length_steps, opts.stride_steps);
     let selected =
@@ -318,7 +326,7 @@ mod tests {
     fn selection_by_peak_yaw_rate() {
         // yaw rate 0.01 rad / 0.025 s = 0.4 rad/s after sample 700
         let d = drive(1500, 700);
-        let sel = calibration_segments(&d, &SegmentOptions::default()).expect("valid");
+        let sel = select_segments(&d, &SegmentOptions::default()).expect("valid");
         for s in &sel.all {
             let turns = s.start + s.steps > 701;
             assert_eq!(sel.selected.contains(s), turns, "{s:?}");
@@ -333,15 +341,15 @@ mod tests {
     fn a_peak_at_the_threshold_is_selected() {
         let straight = drive(1500, 1500);
         let every = SegmentOptions { min_peak_yaw_rate_rad_per_s: 0.0, ..Default::default() };
-        let sel = calibration_segments(&straight, &every).expect("valid");
+        let sel = select_segments(&straight, &every).expect("valid");
         assert!(!sel.all.is_empty() && sel.all.iter().all(|s| s.peak_yaw_rate_rad_per_s == 0.0), "{:?}", sel.all);
         assert_eq!(sel.selected, sel.all);
         let turning = drive(1500, 700);
-        let all = calibration_segments(&turning, &every).expect("valid").all;
+        let all = select_segments(&turning, &every).expect("valid").all;
         let peak = all.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
         let at = |threshold: f64| {
             let opts = SegmentOptions { min_peak_yaw_rate_rad_per_s: threshold, ..Default::default() };
-            calibration_segments(&turning, &opts).expect("valid").selected
+            select_segments(&turning, &opts).expect("valid").selected
         };
         let at_peak: Vec<Segment> =
             all.iter().copied().filter(|s| s.peak_yaw_rate_rad_per_s.to_bits() == peak.to_bits()).collect();

@@ -198,7 +198,7 @@ mod tests {
     const VAN: Extrinsics = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
 
     fn turning_data(d: &crate::drive::Drive) -> Vec<SegmentData<'_>> {
-        let sel = crate::drive::segment::calibration_segments(d, &Default::default()).expect("segments");
+        let sel = crate::drive::segment::select_segments(d, &Default::default()).expect("segments");
         assert!(sel.selected.len() >= 3, "too few turning segments: {}", sel.selected.len());
         sel.selected.iter().map(|s| SegmentData::new(d, s)).collect()
     }
@@ -332,7 +332,7 @@ mod tests {
             max_iterations: 30,
             ..Default::default()
         };
-        let gn = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
+        let gn = CalibrationOptions { method: Method::BatchGn, identify, ..Default::default() };
         let r = calibrate(&d, &gn).expect("batch-gn");
         let x = r.extrinsics.as_ref().expect("extrinsics in the report");
         assert!((x.value.lever_x - VAN.lever_x).abs() < 1e-8, "{}", x.value);

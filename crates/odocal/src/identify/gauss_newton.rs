@@ -338,7 +338,7 @@ mod tests {
     /// from the loop's converged estimate it stays there.
     #[test]
     fn one_step_is_the_loops_first_step() {
-        use crate::drive::segment::{calibration_segments, SegmentOptions};
+        use crate::drive::segment::{select_segments, SegmentOptions};
         use crate::identify::{batch_gauss_newton_drives, gauss_newton_step_drives};
         use crate::model::param::Param;
         use crate::model::Theta;
@@ -346,7 +346,7 @@ mod tests {
         let a = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim").drive;
         let b = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(2) }).expect("sim").drive;
         let joined = crate::Drive::concat(&[&a, &b]).expect("concat");
-        let sel = calibration_segments(&joined, &SegmentOptions::default()).expect("segments");
+        let sel = select_segments(&joined, &SegmentOptions::default()).expect("segments");
         let data: Vec<SegmentData<'_>> = sel.selected.iter().map(|s| SegmentData::new(&joined, s)).collect();
         let theta_only = IdentifyOptions::default();
         let with_offset = IdentifyOptions { free: theta_only.free.with(Param::HeadingOffset), ..theta_only.clone() };

@@ -659,8 +659,8 @@ research_pub! {
     /// # #[cfg(feature = "research")] {
     /// use odocal::{identify, segment, sim, Theta};
     /// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
-    /// let sel = segment::calibration_segments(&drive, &Default::default())?;
-    /// let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();
+    /// let selected = segment::calibration_segments(&drive, &Default::default())?;
+    /// let data: Vec<_> = selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();
     /// let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &Default::default())?;
     /// assert!((report.theta.c_e - 1.95).abs() < 1e-3);
     /// # }
@@ -923,7 +923,7 @@ mod tests {
     fn robust_covariance_is_wider_than_the_model_one_under_paper_noise() {
         use crate::sim::{simulate, SimOptions};
         let d = simulate(&SimOptions { length_km: 12.0, ..SimOptions::paper(3) }).expect("simulate").drive;
-        let sel = crate::drive::segment::calibration_segments(&d, &Default::default()).expect("segments");
+        let sel = crate::drive::segment::select_segments(&d, &Default::default()).expect("segments");
         let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
         let opts = IdentifyOptions::default();
         let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
@@ -950,7 +950,7 @@ mod tests {
     fn robust_covariance_is_the_jackknife_over_clusters() {
         use crate::sim::{simulate, SimOptions};
         let d = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(5) }).expect("simulate").drive;
-        let sel = crate::drive::segment::calibration_segments(&d, &Default::default()).expect("segments");
+        let sel = crate::drive::segment::select_segments(&d, &Default::default()).expect("segments");
         let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
         let opts = IdentifyOptions::default();
         let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");

@@ -85,7 +85,7 @@ use options::invalid;
 pub(crate) use options::SpeedOptions;
 pub use options::{CdStep, DriftOptions, NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
-pub use world::{NoiseRegime, WorldSummary};
+research_use! { world::{NoiseRegime, WorldSummary} }
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;
@@ -435,7 +435,7 @@ fn with_bias(v: f64, bias: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::segment::{calibration_segments, SegmentData};
+    use crate::drive::segment::{select_segments, SegmentData};
     use crate::identify::{batch_gauss_newton, IdentifyOptions};
     use crate::sim::options::RouteOptions;
 
@@ -513,7 +513,7 @@ mod tests {
 
     fn identify(out: &SimOutput) -> (Theta, usize) {
         let d = &out.drive;
-        let sel = calibration_segments(d, &Default::default()).expect("segments");
+        let sel = select_segments(d, &Default::default()).expect("segments");
         assert!(sel.selected.len() >= 5, "too few turning segments: {}", sel.selected.len());
         let data: Vec<_> = sel.selected.iter().map(|s| SegmentData::new(d, s)).collect();
         let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
@@ -834,7 +834,7 @@ mod tests {
     #[test]
     fn route_turns_enough() {
         let out = short(SimOptions::paper(13), 5.0);
-        let sel = calibration_segments(&out.drive, &Default::default()).expect("segments");
+        let sel = select_segments(&out.drive, &Default::default()).expect("segments");
         let frac = sel.selected.len() as f64 / sel.all.len() as f64;
         assert!((0.25..0.8).contains(&frac), "selected {} of {} segments", sel.selected.len(), sel.all.len());
         // And it also has straight stretches and stops.

@@ -6,7 +6,8 @@
 //! wheel-scale variation, slip with acceleration, a biased reference
 //! heading or a biased a_y in the field; a study over random worlds asks
 //! how it fares there. [`NoiseOptions::random_world`] draws a world,
-//! [`WorldSummary`] says which kind of wheel noise dominates one.
+//! `WorldSummary` says which kind of wheel noise dominates one
+//! ([`NoiseOptions::world_summary`] in words).
 //!
 //! ## The distribution
 //!
@@ -101,16 +102,18 @@ const MEAN_TIME_S: f64 = 10.0;
 /// Wheel circumference of the regime's counting error, m (the simulator's true c_e).
 const CIRCUMFERENCE_M: f64 = 1.95;
 
-/// Which kind of wheel noise dominates a world (see the module doc).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum NoiseRegime {
-    /// Little wheel noise of any kind.
-    Quiet,
-    /// White noise and quantisation dominate.
-    White,
-    /// Common-mode coloured noise and slip with acceleration dominate.
-    CommonModeSlip,
+research_pub! {
+    /// Which kind of wheel noise dominates a world (see the module doc).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+    #[serde(rename_all = "kebab-case")]
+    enum NoiseRegime {
+        /// Little wheel noise of any kind.
+        Quiet,
+        /// White noise and quantisation dominate.
+        White,
+        /// Common-mode coloured noise and slip with acceleration dominate.
+        CommonModeSlip,
+    }
 }
 
 /// The name in tables: `quiet`, `white`, `common-mode/slip`.
@@ -124,35 +127,39 @@ impl std::fmt::Display for NoiseRegime {
     }
 }
 
-/// What dominates a noise world's wheel error, and whether its noise is
-/// white only.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct WorldSummary {
-    /// The regime.
-    pub regime: NoiseRegime,
-    /// True when the only sources are white wheel, reference position and
-    /// reference heading noise: the noise the errors-in-variables model
-    /// (and its Cramér–Rao bound) represents exactly.
-    pub white_only: bool,
-    /// White part of a wheel's relative error per sample (white noise and
-    /// counting error).
-    pub wheel_white_rel: f64,
-    /// Common-mode part of a wheel's relative error per sample (common
-    /// coloured noise and slip).
-    pub wheel_common_slip_rel: f64,
-    /// The white part of a wheel's 10 s mean relative error.
-    pub wheel_white_rel_10s: f64,
-    /// The common-mode part of a wheel's 10 s mean relative error.
-    pub wheel_common_slip_rel_10s: f64,
+research_pub! {
+    /// What dominates a noise world's wheel error, and whether its noise is
+    /// white only (outside the crate, in words: [`NoiseOptions::world_summary`]).
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    struct WorldSummary {
+        /// The regime.
+        pub regime: NoiseRegime,
+        /// True when the only sources are white wheel, reference position and
+        /// reference heading noise: the noise the errors-in-variables model
+        /// (and its Cramér–Rao bound) represents exactly.
+        pub white_only: bool,
+        /// White part of a wheel's relative error per sample (white noise and
+        /// counting error).
+        pub wheel_white_rel: f64,
+        /// Common-mode part of a wheel's relative error per sample (common
+        /// coloured noise and slip).
+        pub wheel_common_slip_rel: f64,
+        /// The white part of a wheel's 10 s mean relative error.
+        pub wheel_white_rel_10s: f64,
+        /// The common-mode part of a wheel's 10 s mean relative error.
+        pub wheel_common_slip_rel_10s: f64,
+    }
 }
 
 /// The summary of any noise settings (a preset's too).
 ///
 /// ```
+/// # #[cfg(feature = "research")] {
 /// use odocal::sim::{NoiseOptions, NoiseRegime, WorldSummary};
 /// assert_eq!(WorldSummary::from(&NoiseOptions::default()).regime, NoiseRegime::White);
 /// let off: NoiseOptions = "off".parse().unwrap();
 /// assert_eq!(WorldSummary::from(&off).regime, NoiseRegime::Quiet);
+/// # }
 /// ```
 impl From<&NoiseOptions> for WorldSummary {
     fn from(n: &NoiseOptions) -> WorldSummary {
@@ -246,6 +253,28 @@ impl Draw {
 }
 
 impl NoiseOptions {
+    /// Which kind of wheel noise dominates these settings' world, whether
+    /// its noise is white only, and a wheel's relative error per sample,
+    /// in words (what `odocal simulate --noise random:N` prints).
+    ///
+    /// ```
+    /// let world: odocal::sim::NoiseOptions = "off".parse().unwrap();
+    /// assert_eq!(
+    ///     world.world_summary(),
+    ///     "quiet (white noise only), wheel error per sample 0.00 % white, 0.00 % common-mode and slip"
+    /// );
+    /// ```
+    pub fn world_summary(&self) -> String {
+        let w = WorldSummary::of(self);
+        format!(
+            "{} ({}), wheel error per sample {:.2} % white, {:.2} % common-mode and slip",
+            w.regime,
+            if w.white_only { "white noise only" } else { "every source drawn" },
+            w.wheel_white_rel * 100.0,
+            w.wheel_common_slip_rel * 100.0
+        )
+    }
+
     research_pub! {
         /// These options with the wheel noise of a heavy common-mode world
         /// (the lab's `random_worlds --heavy`; the regime where batch

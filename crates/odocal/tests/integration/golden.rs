@@ -40,7 +40,7 @@ fn three_step() -> CalibrationOptions {
 }
 
 fn batch_gn() -> CalibrationOptions {
-    CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() }
+    CalibrationOptions { method: Method::BatchGn, ..Default::default() }
 }
 
 /// The pinned numbers of a calibration report, read from its JSON (the

@@ -13,7 +13,7 @@ fn manifest(name: &str) -> Manifest {
 /// All segments of 400 steps (10 s), validation segments of 400 steps.
 fn options() -> CalibrationOptions {
     CalibrationOptions {
-        method: Method::BatchGn(Default::default()),
+        method: Method::BatchGn,
         segments: SegmentOptions { length_steps: 400, min_peak_yaw_rate_rad_per_s: 0.0, ..Default::default() },
         validation: ValidationSegmentOptions { length_steps: 400, stride_steps: 200, ..Default::default() },
         ..Default::default()

@@ -328,7 +328,7 @@ impl Settings {
         match &mut o.method {
             Method::ThreeStep(t) => self.three_step_options(t),
             Method::Eiv(e) => self.eiv_options(e, caller)?,
-            Method::BatchGn(_) => {}
+            Method::BatchGn => {}
         }
         self.extrinsics(&mut o, caller)?;
         let fix = self.fix.unwrap_or_default();

@@ -1,6 +1,6 @@
 //! Shared fixtures of the EIV tests: inputs, filter records, drives.
 
-use crate::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
+use crate::drive::segment::{select_segments, SegmentData, SegmentOptions};
 use crate::drive::Drive;
 use crate::eiv::filter::{run_window, InnovationRecord};
 use crate::eiv::*;
@@ -14,7 +14,7 @@ pub(super) fn input_of(d: &Drive) -> EivInput<'_> {
 
 /// Batch Gauss-Newton on every cut segment (no yaw-rate selection).
 pub(super) fn batch_gn_all(d: &Drive) -> Theta {
-    let sel = calibration_segments(d, &SegmentOptions::default()).expect("segments");
+    let sel = select_segments(d, &SegmentOptions::default()).expect("segments");
     let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
     let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
     batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("batch G-N").theta
