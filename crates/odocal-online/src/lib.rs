@@ -73,7 +73,7 @@ use serde::{Deserialize, Serialize};
 use odocal::identify::extrinsics_normal_equations;
 use odocal::io::Replay;
 use odocal::segment::SegmentData;
-use odocal::{segment_position_error_with, Drive, Error, Extrinsics, Result, Signals, StreamChunk, Theta};
+use odocal::{dead_reckoning, Drive, Error, Extrinsics, Result, Signals, StreamChunk, Theta};
 
 pub mod gate;
 mod options;
@@ -796,8 +796,8 @@ impl Calibrator {
     fn score(&mut self, p: &Pending) {
         let seg = self.buf.segment(p.start, self.opts.validation.length_steps, self.sample_time_s);
         let e = Extrinsics { heading_offset: p.heading_offset, ..Extrinsics::default() };
-        let prequential_m = segment_position_error_with(&seg, &p.theta, &e);
-        let stored_m = self.stored.map(|t| segment_position_error_with(&seg, &t, &e));
+        let prequential_m = dead_reckoning(&seg, &p.theta, &e).0;
+        let stored_m = self.stored.map(|t| dead_reckoning(&seg, &t, &e).0);
         if !prequential_m.is_finite() {
             return;
         }

@@ -89,7 +89,7 @@ pub(crate) fn _write_params(
     if let Some(w) = wheel_scale {
         f.provenance.push(("wheel_scale".into(), w));
     }
-    f.write(&path).map_err(lib_err)
+    f.text_for(&path).and_then(|text| odocal::output::write_text(&path, &text)).map_err(lib_err)
 }
 
 /// How a parameter file's `provenance.input` names the calibration

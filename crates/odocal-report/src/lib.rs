@@ -446,7 +446,7 @@ fn esc(s: &str) -> String {
 /// Dead reckoning of one segment from its reference start pose under the
 /// extrinsics `e`: the reference point's (x, y) per sample.
 fn dead_reckoning(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> Vec<(f64, f64)> {
-    odocal::dead_reckoned_reference(seg, theta, e)
+    odocal::dead_reckoning(seg, theta, e).1
 }
 
 /// Thins a polyline to at most `max` points (keeps the last).

@@ -4,7 +4,6 @@ use std::fmt::Write as _;
 
 use odocal::model::{step, Input, State, THETA_NAMES};
 use odocal::segment::SegmentData;
-use odocal::segment_position_error_with;
 
 use crate::plots::{self, figure_svg, Panel, Series};
 use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};
@@ -34,7 +33,7 @@ pub(crate) struct SegmentErrors {
 impl SegmentErrors {
     pub fn new(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Self {
         let each = |theta: &odocal::Theta, extrinsics: &dyn Fn(usize) -> odocal::Extrinsics| -> Vec<f64> {
-            let error = |(i, s): (usize, &SegmentData<'_>)| segment_position_error_with(s, theta, &extrinsics(i));
+            let error = |(i, s): (usize, &SegmentData<'_>)| odocal::dead_reckoning(s, theta, &extrinsics(i)).0;
             segs.iter().enumerate().map(error).collect()
         };
         SegmentErrors {

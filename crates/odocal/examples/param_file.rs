@@ -22,8 +22,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // θ with its 1σ (None for held parameters), the verdict and provenance;
     // `.yaml` writes the ROS 2 `ros__parameters` layout, `.json` JSON.
     let file = report.param_file(fit);
-    file.write(Path::new(out))?;
-    print!("{}", std::fs::read_to_string(out)?);
+    let text = file.text_for(Path::new(out))?;
+    odocal::output::write_text(Path::new(out), &text)?; // atomically
+    print!("{text}");
 
     // Read back: the same θ, to the printed precision of the file.
     let back = ParamFile::read(Path::new(out), None)?;

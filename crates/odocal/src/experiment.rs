@@ -196,21 +196,6 @@ pub struct Table1 {
     pub batch_compensated: Scored,
 }
 
-/// Summary statistics of a set of estimates.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Summary {
-    /// Estimates.
-    pub count: usize,
-    /// Smallest Ē_p, m.
-    pub min_mean_position_error_m: f64,
-    /// Median Ē_p, m.
-    pub median_mean_position_error_m: f64,
-    /// Largest Ē_p, m.
-    pub max_mean_position_error_m: f64,
-    /// Median |θ − θ_true| per parameter, SI.
-    pub median_abs_error_vs_true: Option<Theta>,
-}
-
 /// Fig. 6: the Table 1 segment, dead reckoning at θ_B,F; its numbers and
 /// its curves, `(time from the segment start in s, value)` (the curves are
 /// not serialised).
@@ -316,14 +301,6 @@ pub struct Experiment {
     pub table1: Table1,
     /// Every selected segment alone, raw and compensated.
     pub per_segment: Vec<SegmentRow>,
-    /// Step-1 batches, raw.
-    pub summary_batches_raw: Summary,
-    /// Step-1 batches, compensated.
-    pub summary_batches_compensated: Summary,
-    /// Single segments, raw.
-    pub summary_segments_raw: Summary,
-    /// Single segments, compensated.
-    pub summary_segments_compensated: Summary,
     /// Step 2.
     pub compensation: CompensationStep,
     /// Fig. 6.
@@ -336,44 +313,6 @@ pub struct Experiment {
 
 fn diff(a: &Theta, b: &Theta) -> Theta {
     Theta { c_e: a.c_e - b.c_e, c_d: a.c_d - b.c_d, t_r: a.t_r - b.t_r, d: a.d - b.d }
-}
-
-/// Median of the finite values (NaN when there are none).
-pub(crate) fn median(values: &[f64]) -> f64 {
-    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
-fn summarize<'a>(items: impl Iterator<Item = &'a Scored>) -> Summary {
-    let items: Vec<&Scored> = items.collect();
-    let mut e: Vec<f64> = items.iter().map(|s| s.mean_position_error_m).collect();
-    let med = median(&e);
-    e.sort_by(f64::total_cmp);
-    let err = if items.iter().all(|s| s.error_vs_true.is_some()) && !items.is_empty() {
-        let col = |f: fn(&Theta) -> f64| {
-            let v: Vec<f64> = items.iter().filter_map(|s| s.error_vs_true.as_ref().map(|t| f(t).abs())).collect();
-            median(&v)
-        };
-        Some(Theta { c_e: col(|t| t.c_e), c_d: col(|t| t.c_d), t_r: col(|t| t.t_r), d: col(|t| t.d) })
-    } else {
-        None
-    };
-    Summary {
-        count: items.len(),
-        min_mean_position_error_m: e.first().copied().unwrap_or(f64::NAN),
-        median_mean_position_error_m: med,
-        max_mean_position_error_m: e.last().copied().unwrap_or(f64::NAN),
-        median_abs_error_vs_true: err,
-    }
 }
 
 /// Runs the experiment on `drive` (θ_true when known).
@@ -453,10 +392,6 @@ pub fn run(
         nominal,
         initial_guess,
         batch_size: three.initial_batch_size,
-        summary_batches_raw: summarize(batches.iter().map(|b| &b.raw)),
-        summary_batches_compensated: summarize(batches.iter().filter_map(|b| b.compensated.as_ref())),
-        summary_segments_raw: summarize(segs.rows.iter().filter_map(|s| s.raw.as_ref())),
-        summary_segments_compensated: summarize(segs.rows.iter().filter_map(|s| s.compensated.as_ref())),
         batches,
         picked_batches: init.picked_batches.clone(),
         picked,

@@ -165,10 +165,7 @@ struct ReadmeDoctests;
 
 // Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
-pub use model::{
-    extrinsics::DriveHeadingOffset, extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param,
-    param::ParamSet, Theta,
-};
+pub use model::{extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param, param::ParamSet, Theta};
 pub use progress::Progress;
 // Drives: building and importing; parameter files. `segment` is
 // an expert module (its docs say for whom).
@@ -197,7 +194,7 @@ pub use calibrate::{
 research_use! { assess::pooling }
 pub use assess::{
     heading_offset::HeadingOffsetFit,
-    position_error::{dead_reckoned_reference, mean_position_error, segment_position_error_with, ValidationReport},
+    position_error::{dead_reckoning, mean_position_error, ValidationReport},
     reachable::{ReachableOptions, ReachableReport},
     trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},
     validate::{DriveFit, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},
@@ -213,6 +210,7 @@ research_pub! {
         research_use! {
             crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum},
             crate::calibrate::report::Timing,
+            crate::model::extrinsics::DriveHeadingOffset,
             crate::calibrate::{
                 calibrate_detailed,
                 input_noise::{simex_bias, wheel_white_noise},

@@ -4,8 +4,9 @@
 
 use std::fmt::Write as _;
 
-use odocal::experiment::{CramerRao, Experiment, Scored, Summary};
+use odocal::experiment::{CramerRao, Experiment, Scored};
 
+use super::summary::{summaries, Summary};
 use super::Outputs;
 
 /// The report.
@@ -110,10 +111,9 @@ fn per_segment(o: &mut String, e: &Experiment) {
     );
     let _ = writeln!(o, "| | count | min Ē_p (m) | median Ē_p (m) | max Ē_p (m) | median abs Δc_e (mm) | median abs Δc_d (mm) | median abs Δt_r (mm) | median abs Δd (mm/(m/s²)) |");
     let _ = writeln!(o, "|---|---|---|---|---|---|---|---|---|");
-    summary_row(o, "segments, raw", &e.summary_segments_raw);
-    summary_row(o, "segments, compensated", &e.summary_segments_compensated);
-    summary_row(o, "batches, raw", &e.summary_batches_raw);
-    summary_row(o, "batches, compensated", &e.summary_batches_compensated);
+    for (_, name, s) in summaries(e) {
+        summary_row(o, name, &s);
+    }
 }
 
 /// The input compensation (step 2) and the Fig. 6 segment.

@@ -21,6 +21,7 @@ use crate::progress::Bars;
 
 mod figures;
 mod markdown;
+mod summary;
 
 /// Arguments of `odocal experiment`.
 #[derive(Args)]
@@ -260,11 +261,14 @@ fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
     Ok((out.drive, Some(out.sidecar.theta_true), Some(noise), info))
 }
 
-/// The text of `experiment.json`: the library's numbers with the drive,
-/// the figures and the timing.
+/// The text of `experiment.json`: the library's numbers with the summary
+/// rows ([`summary`]), the drive, the figures and the timing.
 fn json_text(exp: &Experiment, outputs: &Outputs) -> Result<String> {
     let mut json = serde_json::to_value(exp)?;
     if let Some(obj) = json.as_object_mut() {
+        for (key, _, s) in summary::summaries(exp) {
+            obj.insert(key.into(), serde_json::to_value(s)?);
+        }
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
         obj.insert("drive".into(), serde_json::to_value(&outputs.drive)?);
         obj.insert("figures".into(), serde_json::to_value(&outputs.figures)?);

@@ -99,7 +99,7 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_BIAS_CORRECTION.get().copied(), &mut options.method) {
         e.correct_bias = None;
-        e.filter.bias_correction = odocal::eiv::BiasCorrection::None;
+        e.filter.research.bias_correction = odocal::eiv::BiasCorrection::None;
     }
     Ok((drive, options))
 }

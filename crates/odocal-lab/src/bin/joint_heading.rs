@@ -48,8 +48,8 @@ fn held_out(r: &CalibrationReport, others: &[(&str, &Drive)]) -> Res<f64> {
 
 fn deltas(r: &CalibrationReport) -> String {
     match &r.extrinsics {
-        Some(x) if !x.per_drive.is_empty() => {
-            x.per_drive.iter().map(|p| format!("{:.1}", p.value * 1e3)).collect::<Vec<_>>().join(", ")
+        Some(x) if !x.per_drive().is_empty() => {
+            x.per_drive().iter().map(|p| format!("{:.1}", p.value * 1e3)).collect::<Vec<_>>().join(", ")
         }
         Some(x) => format!("{:.1}", x.value.heading_offset * 1e3),
         None => "–".into(),

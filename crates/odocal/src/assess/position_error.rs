@@ -55,7 +55,7 @@ research_pub! {
     /// Ē_p of θ with the pose reference mounted at `extrinsics`: each segment
     /// starts from the axle pose the reference implies and the model's
     /// reference point is compared with the measured one
-    /// ([`segment_position_error_with`]). With zero extrinsics
+    /// (`segment_position_error_with`). With zero extrinsics
     /// this is [`mean_position_error`], bit for bit.
     fn mean_position_error_with(
         drive: &Drive,
@@ -108,15 +108,9 @@ pub(crate) fn mean_position_error_by(
 /// Mean position error E_p,s of one segment at (θ, e) (SPEC §7 with the
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
-/// measured one. With `e` all 0 it is the plain E_p,s (SPEC §7), bit for bit.
-///
-/// A segment of 0 steps has no error to average: the result is NaN (check
-/// [`Segment::steps`](crate::segment::Segment::steps) first; the segments
-/// [`crate::segment::cut`] gives have at least one step), where
-/// [`mean_position_error`] refuses a non-finite Ē_p with
-/// [`Error::Numerical`]. Non-finite inputs likewise give a non-finite value,
-/// not an error.
-pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
+/// measured one. With `e` all 0 it is the plain E_p,s (SPEC §7), bit for bit
+/// (outside the crate: [`dead_reckoning`], which gives the path too).
+pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut sum = 0.0;
     for k in 0..seg.steps() {
@@ -127,20 +121,32 @@ pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Ext
     sum / seg.steps() as f64
 }
 
-/// The dead-reckoned positions of the reference point over one segment at
-/// (θ, e), from the axle pose the segment's first reference pose implies
-/// (K+1 points; what [`segment_position_error_with`] compares).
-pub fn dead_reckoned_reference(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> Vec<(f64, f64)> {
+/// Dead reckoning of one segment at (θ, e), from the axle pose the
+/// segment's first reference pose implies: its mean position error E_p,s
+/// (SPEC §7 with the model's reference pose: the model's reference point
+/// compared with the measured one; with `e` all 0 the plain E_p,s, bit for
+/// bit) and the dead-reckoned positions of the reference point (K+1
+/// points), `(E_p,s in m, [(x, y)])`.
+///
+/// A segment of 0 steps has no error to average: the error is NaN (check
+/// [`Segment::steps`](crate::segment::Segment::steps) first; the segments
+/// [`crate::segment::cut`] gives have at least one step), where
+/// [`mean_position_error`] refuses a non-finite Ē_p with
+/// [`Error::Numerical`]. Non-finite inputs likewise give a non-finite value,
+/// not an error.
+pub fn dead_reckoning(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> (f64, Vec<(f64, f64)>) {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut out = Vec::with_capacity(seg.steps() + 1);
     let y = reference_pose(&x, e);
     out.push((y[0], y[1]));
+    let mut sum = 0.0;
     for k in 0..seg.steps() {
         x = step(&x, &seg.input(k), theta, seg.sample_time_s);
         let y = reference_pose(&x, e);
+        sum += (seg.px[k + 1] - y[0]).hypot(seg.py[k + 1] - y[1]);
         out.push((y[0], y[1]));
     }
-    out
+    (sum / seg.steps() as f64, out)
 }
 
 #[cfg(test)]

@@ -176,8 +176,8 @@ pub struct EivMethodOptions {
     /// `Some(CorrectBias::default())`: c_e and c_d, B = `DEFAULT_BIAS_REPLICATES`
     /// (module docs, "Bias correction"); `None` returns the
     /// profile cost's root as is. Ignored when
-    /// [`EivOptions::bias_correction`] is set in `filter` (that setting
-    /// stands).
+    /// `filter.research.bias_correction` is set (feature `research`; that
+    /// setting stands).
     pub correct_bias: Option<CorrectBias>,
 }
 
@@ -234,7 +234,7 @@ impl EivMethodOptions {
     /// own [`EivOptions::bias_correction`].
     pub(crate) fn effective_filter(&self) -> EivOptions {
         let mut f = self.filter.clone();
-        if let (Some(c), BiasCorrection::None) = (self.correct_bias, f.bias_correction) {
+        if let (Some(c), BiasCorrection::None) = (self.correct_bias, f.research.bias_correction) {
             f.correct_bias(c.replicates, c.seed, c.parameters);
         }
         f
@@ -630,11 +630,9 @@ impl EivMethodOptions {
         };
         let (s, t0) = (start.theta.to_array(), theta0.to_array());
         let held: [f64; 4] = std::array::from_fn(|i| if determined(i) { s[i] } else { t0[i] });
-        EivOptions {
-            free: mask(free),
-            hold_unobservable_at: self.filter.hold_unobservable_at.or(Some(Theta::from_array(held))),
-            ..self.effective_filter()
-        }
+        let mut o = EivOptions { free: mask(free), ..self.effective_filter() };
+        o.research.hold_unobservable_at = self.filter.research.hold_unobservable_at.or(Some(Theta::from_array(held)));
+        o
     }
 
     /// The filter from `theta` without the bias correction; then, unless
@@ -652,7 +650,7 @@ impl EivMethodOptions {
     /// `start_c_e_variance` is the start's variance of c_e, which a refit
     /// holding c_e carries.
     fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions, start_c_e_variance: f64) -> Fitted {
-        let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
+        let uncorrected = filter.without_bias_correction();
         let mut fit = eiv::estimate(input, theta, &uncorrected);
         let mut refit = false;
         if let Ok(r) = &fit {
@@ -668,7 +666,9 @@ impl EivMethodOptions {
             if let Some((again, opts, first)) = refit_at_clamp(input, theta, &uncorrected, r) {
                 fit = Ok(again);
                 refit = true;
-                refit_options = Some(EivOptions { bias_correction: filter.bias_correction, ..opts });
+                let mut opts = opts;
+                opts.research.bias_correction = filter.research.bias_correction;
+                refit_options = Some(opts);
                 clamp_refit = Some(Box::new(first));
             }
         }
@@ -778,7 +778,7 @@ fn bias_correction_warning(r: &EivReport, filter: &EivOptions, correction_failed
     if let Some(error) = correction_failed {
         Some(Warning::EivBiasCorrectionFailed { error })
     } else if let (Some((_, first_error)), BiasCorrection::Bootstrap { replicates, .. }) =
-        (r.bias_replicates_failed.first(), filter.bias_correction)
+        (r.bias_replicates_failed.first(), filter.research.bias_correction)
     {
         Some(Warning::EivBiasCorrectionIncomplete {
             failed: r.bias_replicates_failed.len(),

@@ -256,7 +256,7 @@ impl CalibrationReport {
     /// A joint calibration's heading offset of each drive, as the JSON
     /// reports' `heading_offset_per_drive`: `[{source, fingerprint, value,
     /// sigma}]` (rad; σ the one that stands for the value,
-    /// [`DriveHeadingOffset::result_std_dev`](crate::DriveHeadingOffset::result_std_dev)).
+    /// [`DriveHeadingOffset::result_std_dev`](crate::model::extrinsics::DriveHeadingOffset::result_std_dev)).
     /// `drives` are the reports' drive entries (objects with `role`,
     /// `path`, `fingerprint`); a drive is named by the entry of its index
     /// among those with role `"calibration"`. `None` without one offset per

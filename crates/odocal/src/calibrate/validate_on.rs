@@ -22,7 +22,7 @@ impl CalibrationReport {
     /// the calibration's start and result, and after a joint calibration
     /// validated on its own drives (`drive_starts`: the calibration
     /// drive's, [`Drive::drive_starts`]) the result with the segment's
-    /// drive's heading offset ([`crate::ExtrinsicsEstimate::per_drive`]).
+    /// drive's heading offset (JSON `heading_offset_per_drive`).
     pub fn validation_extrinsics(&self, drive_starts: &[usize], segments: &[Segment]) -> Vec<[Extrinsics; 2]> {
         let start = self.options.identify.extrinsics;
         let result = self.extrinsics.as_ref().map_or(start, |x| x.value);

@@ -11,10 +11,10 @@ use crate::error::{Error, Result};
 use crate::model::param::Param;
 
 research_pub! {
-    /// Applies `opts.bias_correction` to a fit made without it (nothing for
+    /// Applies `opts.research.bias_correction` to a fit made without it (nothing for
     /// `BiasCorrection::None`): runs the [`bootstrap`](fn@bootstrap) it names at the fit
-    /// (replicates on `opts.bootstrap_inputs`, each holding the fitted noise
-    /// model; in antithetic pairs with `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
+    /// (replicates on `opts.research.bootstrap_inputs`, each holding the fitted noise
+    /// model; in antithetic pairs with `opts.research.bootstrap_antithetic`), subtracts its bias from `report.theta`
     /// (the free parameters of those it names) and adds the bias's Monte Carlo
     /// covariance to `report.covariance` and `report.sigma`.
     ///
@@ -45,7 +45,7 @@ research_pub! {
     /// # Ok(()) }
     /// ```
     fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
-        let BiasCorrection::Bootstrap { replicates, seed, parameters } = opts.bias_correction else {
+        let BiasCorrection::Bootstrap { replicates, seed, parameters } = opts.research.bias_correction else {
             return Ok(());
         };
         opts.validate()?;
@@ -61,8 +61,7 @@ research_pub! {
         let opts = &opts.with_resolved_readings(report.quantisation_step_from_readings, report.a_y_noise_floor);
         // The replicates are fitted without correction (their mean estimates
         // the uncorrected estimator's mean at θ̂), holding the fitted noise model.
-        let inner =
-            EivOptions { bias_correction: BiasCorrection::None, noise: report.noise, fix_noise: true, ..opts.clone() };
+        let inner = EivOptions { noise: report.noise, fix_noise: true, ..opts.without_bias_correction() };
         let boot = bootstrap(
             input,
             &*report,
@@ -70,8 +69,8 @@ research_pub! {
             &BootstrapOptions {
                 replicates,
                 seed,
-                true_inputs: opts.bootstrap_inputs,
-                antithetic: opts.bootstrap_antithetic,
+                true_inputs: opts.research.bootstrap_inputs,
+                antithetic: opts.research.bootstrap_antithetic,
                 refit: opts.research.bias_correction_refit,
                 ..Default::default()
             },

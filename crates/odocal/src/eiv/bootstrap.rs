@@ -38,47 +38,63 @@ use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, Innovatio
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
 
-/// Options of `bootstrap`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct BootstrapOptions {
-    /// Number of replicates B. Default 50.
-    pub replicates: usize,
-    /// Seed of the replicates' random streams. Default 0.
-    pub seed: u64,
-    /// Coverage of the percentile intervals. Default 0.95.
-    pub level: f64,
-    /// The true inputs of the replicate worlds. Default
-    /// [`BootstrapInputs::Measured`].
-    pub true_inputs: BootstrapInputs,
-    /// Antithetic pairs: replicates 2j and 2j + 1 share one random stream
-    /// with every Gaussian draw's sign flipped in the second, and the bias
-    /// is the mean of the pairs' means (`replicates` must then be even).
-    /// Each replicate is still a draw of the fitted noise model; the pair's
-    /// mean cancels the part of the estimator's error that is odd in the
-    /// noise (to first order all of its spread) and keeps the even part,
-    /// whose mean is the bias. Default false.
-    pub antithetic: bool,
-    /// How each replicate is re-fitted. Default [`BootstrapRefit::Converged`].
-    pub refit: BootstrapRefit,
+/// Declares [`BootstrapOptions`] with the replicate worlds' design at
+/// visibility `$vis`: public with the `research` feature, crate-private
+/// without it.
+macro_rules! bootstrap_options {
+    ($vis:vis) => {
+        /// Options of `bootstrap`: the replicates, their seed and the intervals'
+        /// level (the replicate worlds' design is research-only, feature
+        /// `research`).
+        #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+        #[serde(default)]
+        pub struct BootstrapOptions {
+            /// Number of replicates B. Default 50.
+            pub replicates: usize,
+            /// Seed of the replicates' random streams. Default 0.
+            pub seed: u64,
+            /// Coverage of the percentile intervals. Default 0.95.
+            pub level: f64,
+            /// The true inputs of the replicate worlds. Default
+            /// `BootstrapInputs::Measured`.
+            $vis true_inputs: BootstrapInputs,
+            /// Antithetic pairs: replicates 2j and 2j + 1 share one random stream
+            /// with every Gaussian draw's sign flipped in the second, and the bias
+            /// is the mean of the pairs' means (`replicates` must then be even).
+            /// Each replicate is still a draw of the fitted noise model; the pair's
+            /// mean cancels the part of the estimator's error that is odd in the
+            /// noise (to first order all of its spread) and keeps the even part,
+            /// whose mean is the bias. Default false.
+            $vis antithetic: bool,
+            /// How each replicate is re-fitted. Default `BootstrapRefit::Converged`.
+            $vis refit: BootstrapRefit,
+        }
+    };
 }
 
-/// How `bootstrap` re-fits a replicate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-pub enum BootstrapRefit {
-    /// `estimate` to convergence, from θ̂.
-    #[default]
-    Converged,
-    /// One Fisher-scoring step from θ̂: a single filter pass per replicate
-    /// instead of two or more (the "k-step bootstrap" with k = 1). With the
-    /// noise model held (`EivOptions::fix_noise`) and the covariance
-    /// following θ only; otherwise, and where the step leaves the valid
-    /// range of θ, the replicate is fitted to convergence. A replicate
-    /// whose converged fit takes one full step (the usual case from θ̂) gets
-    /// the same θ to the bit; elsewhere the later steps are left out. What
-    /// the bias correction (`EivOptions::correct_bias`) uses; measured
-    /// against converged replicates in crates/odocal-lab/PERFORMANCE.md.
-    OneStep,
+#[cfg(feature = "research")]
+bootstrap_options!(pub);
+#[cfg(not(feature = "research"))]
+bootstrap_options!(pub(crate));
+
+research_pub! {
+    /// How `bootstrap` re-fits a replicate.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    enum BootstrapRefit {
+        /// `estimate` to convergence, from θ̂.
+        #[default]
+        Converged,
+        /// One Fisher-scoring step from θ̂: a single filter pass per replicate
+        /// instead of two or more (the "k-step bootstrap" with k = 1). With the
+        /// noise model held (`EivOptions::fix_noise`) and the covariance
+        /// following θ only; otherwise, and where the step leaves the valid
+        /// range of θ, the replicate is fitted to convergence. A replicate
+        /// whose converged fit takes one full step (the usual case from θ̂) gets
+        /// the same θ to the bit; elsewhere the later steps are left out. What
+        /// the bias correction (`EivOptions::correct_bias`) uses; measured
+        /// against converged replicates in crates/odocal-lab/PERFORMANCE.md.
+        OneStep,
+    }
 }
 
 impl BootstrapOptions {
@@ -127,29 +143,31 @@ impl Default for BootstrapOptions {
     }
 }
 
-/// The true inputs (wheel rotations, a_y, β) of a bootstrap replicate world.
-///
-/// Why the choice (measured with `study_eiv` in crates/odocal-lab). With the
-/// measured inputs as the truth, the replicate's true yaw rate carries the
-/// measured wheels' white noise (on `high` about 5 mrad per 25 ms step at
-/// 10 m/s, more than the turning itself), so the replicates see a far larger
-/// true yaw signal than the drive had, and the t_r bias of the errors-in-
-/// variables fit, which grows with noise over signal, does not appear in
-/// them: on `high` (known noise, 20 seeds × 12 km, B = 10) the bootstrap on
-/// the measured inputs corrects c_e (+0.059 → +0.008 %) but not t_r
-/// (+0.66 → +0.70 %).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-pub enum BootstrapInputs {
-    /// The drive's measured inputs.
-    #[default]
-    Measured,
-    /// The measured inputs averaged over ±`half_width_samples` within each
-    /// continuous part (truncated at the part's ends): a smoothed
-    /// trajectory.
-    Smoothed {
-        /// Half-width K of the centred moving average, samples (at least 1).
-        half_width_samples: usize,
-    },
+research_pub! {
+    /// The true inputs (wheel rotations, a_y, β) of a bootstrap replicate world.
+    ///
+    /// Why the choice (measured with `study_eiv` in crates/odocal-lab). With the
+    /// measured inputs as the truth, the replicate's true yaw rate carries the
+    /// measured wheels' white noise (on `high` about 5 mrad per 25 ms step at
+    /// 10 m/s, more than the turning itself), so the replicates see a far larger
+    /// true yaw signal than the drive had, and the t_r bias of the errors-in-
+    /// variables fit, which grows with noise over signal, does not appear in
+    /// them: on `high` (known noise, 20 seeds × 12 km, B = 10) the bootstrap on
+    /// the measured inputs corrects c_e (+0.059 → +0.008 %) but not t_r
+    /// (+0.66 → +0.70 %).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    enum BootstrapInputs {
+        /// The drive's measured inputs.
+        #[default]
+        Measured,
+        /// The measured inputs averaged over ±`half_width_samples` within each
+        /// continuous part (truncated at the part's ends): a smoothed
+        /// trajectory.
+        Smoothed {
+            /// Half-width K of the centred moving average, samples (at least 1).
+            half_width_samples: usize,
+        },
+    }
 }
 
 research_pub! {
@@ -249,10 +267,10 @@ research_pub! {
             },
             ..resolved
         };
-        if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
+        if matches!(refit.research.bias_correction, BiasCorrection::Bootstrap { .. }) {
             // No bootstrap inside the bootstrap (B² fits): the replicates are
             // fitted without it.
-            refit.bias_correction = BiasCorrection::None;
+            refit.research.bias_correction = BiasCorrection::None;
         }
         let results: Vec<Result<Theta>> = (0..boot.replicates)
             .into_par_iter()

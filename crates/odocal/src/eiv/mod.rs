@@ -161,7 +161,7 @@
 //! columns only), with the noise fixed 1 + iterations (3); the η term of
 //! the covariance one more per free parameter (4). The bias correction's
 //! replicates take one pass each (one scoring step from the estimate,
-//! [`BootstrapRefit::OneStep`]). docs/performance.md and crates/odocal-lab/PERFORMANCE.md have the timings
+//! `BootstrapRefit::OneStep`). docs/performance.md and crates/odocal-lab/PERFORMANCE.md have the timings
 //! (`eiv_speed` in crates/odocal-lab). Results agree with the straightforward dense
 //! filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).
@@ -184,7 +184,7 @@
 //! options (each replicate seeded on its own, so thread-count independent),
 //! giving percentile and basic intervals, the estimator's bias at θ̂ and the
 //! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias:
-//! [`EivOptions::bias_correction`] = `BiasCorrection::Bootstrap` applies it
+//! `ResearchOptions::bias_correction` = `BiasCorrection::Bootstrap` applies it
 //! inside `estimate` (its table; the analytic alternatives measured
 //! against it are `FirstOrderBias` and the fitted-input noise scale).
 //!
@@ -249,11 +249,11 @@ pub(crate) use modelling::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES;
 pub(crate) use noise::NOISE_SOURCES;
 pub(crate) use options::correctable_problem;
 pub(crate) use report::PARAMETERS;
-// What a user sets (the options, the noise model, the bias correction and
-// the bootstrap's options) and the EIV findings of the calibration's warnings.
+// What a user sets (the options, the noise model and the bootstrap's
+// options) and the EIV findings of the calibration's warnings.
 pub use {
-    bootstrap::{BootstrapInputs, BootstrapOptions, BootstrapRefit},
-    modelling::{BiasCorrection, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
+    bootstrap::BootstrapOptions,
+    modelling::{HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
     noise::{NoiseModel, NoiseSource},
     options::EivOptions,
     report::{EivWarning, PoseComponent, Termination},
@@ -263,14 +263,14 @@ pub use {
 // crates/odocal-lab), crate-internal (at their defaults) without it.
 research_use! {
     bias_correction::apply_bias_correction,
-    bootstrap::{bootstrap, BootstrapReport},
+    bootstrap::{bootstrap, BootstrapInputs, BootstrapRefit, BootstrapReport},
     crb::cramer_rao_bound,
     estimate::{estimate, kernel_instruction_set},
     heading_drift::HeadingDriftTest,
     input::{EivInput, Window},
     lattice::quantisation_step_of_readings,
     modelling::{
-        FirstOrderBias, InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+        BiasCorrection, FirstOrderBias, InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
     },
     options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
     report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},

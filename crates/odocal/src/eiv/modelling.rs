@@ -180,70 +180,72 @@ impl WheelNoiseScale {
     }
 }
 
-/// A correction of the estimator's own bias applied to the estimate.
-///
-/// With the sideslip error white-equivalent
-/// (`SideslipNoise::WhiteEquivalent`) the fit has a c_e bias of about
-/// +0.1 % under coloured wheel noise, which the bootstrap removes on every
-/// preset (the known noise model fixed, 12 km, 20 seeds, B = 10: c_e t
-/// 14–35 → 0.5–0.8; the analytic first-order correction, `FirstOrderBias` (feature `research`),
-/// does not). With the sideslip error a filter state (the default) the fit
-/// has no c_e bias left; what remains under heavy wheel noise is t_r's and
-/// d's. Measured (`study_eiv --km 12 --seeds 20 --methods est --bootstrap
-/// 10 --bootstrap-smooth 20` in crates/odocal-lab, η estimated, every
-/// parameter corrected, replicates on the smoothed trajectory holding the
-/// fitted noise model; mean error (t), coverage of the 95 % interval over
-/// the four parameters):
-///
-/// | preset | t_r uncorrected | t_r corrected | d corrected | largest \|t\| | coverage |
-/// |---|---|---|---|---|---|
-/// | high | +1.097 % (4.5) | +0.531 % (1.9) | −0.083 (1.3) | 1.9 | 86.3 → 95.0 % |
-/// | paper | +0.220 % (3.1) | +0.211 % (2.6) | −0.033 (1.8) | 2.6 | 96.3 → 93.8 % |
-/// | white | +0.073 % (1.3) | +0.059 % (1.0) | +0.002 (0.1) | 1.0 | 97.5 → 97.5 % |
-/// | coloured | +0.093 % (1.7) | +0.095 % (1.4) | −0.010 (0.6) | 1.4 | 93.8 → 92.5 % |
-///
-/// With independent replicates that correction adds Monte Carlo noise: the
-/// corrected t_r is more spread (RMS/CRB on paper 1.69 → 1.82) and
-/// fresh-drive Ē_p 1–4 cm worse. Antithetic pairs
-/// ([`EivOptions::bootstrap_antithetic`](crate::eiv::EivOptions::bootstrap_antithetic), set by
-/// `EivOptions::correct_bias`), whose means cancel the replicates' odd
-/// error, remove the same bias with B = 4 (high t_r +0.458 %, t 1.9;
-/// largest |t| 2.8 on paper) and the RMS error falls (t_r on high 5.38 →
-/// 4.01× the bound, paper 1.69 → 1.62×), coverage 93.8 / 96.3 / 97.5 /
-/// 95.0 %. It is the EIV method's default in `calibrate`
-/// (`calibrate::EivMethodOptions::correct_bias`, the CLI's `--correct-bias
-/// B` / `--no-bias-correction`); `estimate` applies what this field says
-/// (default none). The subtracted bias is a mean over the replicates (or
-/// pairs); its Monte Carlo covariance is added to θ's
-/// (`EivReport::sigma_bias_correction`).
-///
-/// The replicates hold the fitted noise model (`EivReport::noise`,
-/// `fix_noise`): they estimate the bias of θ̂ at the fitted noise. Measured
-/// against replicates that re-estimate the noise (the command above): t_r on
-/// `high` +0.531 % (t 1.9) held, −0.676 % (t −2.4; d t 3.0) re-estimated,
-/// which over-corrects (its replicates, in worlds made from the fitted
-/// noise model, shift t_r by 1.8 % where the drive's own fit is off by
-/// 1.1 %) at three times the cost; c_e alone is corrected the same either
-/// way (`--bootstrap-reestimate-seeds 20` gives the re-estimating rows).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BiasCorrection {
-    /// The root of the profile cost as is.
-    #[default]
-    None,
-    /// The parametric `bootstrap` bias (B re-simulations of the fitted
-    /// noise at θ̂, each re-fitted without correction) subtracted:
-    /// `θ̂ − (mean of the replicates − θ̂)`, for the named parameters of θ
-    /// (those of them the fit estimates). About B more fits.
-    Bootstrap {
-        /// Replicates B (at least 2).
-        replicates: usize,
-        /// Seed of the replicates' random streams.
-        seed: u64,
-        /// The parameters of θ corrected (not empty; no extrinsic); the
-        /// others keep the fit's value.
-        parameters: ParamSet,
-    },
+research_pub! {
+    /// A correction of the estimator's own bias applied to the estimate.
+    ///
+    /// With the sideslip error white-equivalent
+    /// (`SideslipNoise::WhiteEquivalent`) the fit has a c_e bias of about
+    /// +0.1 % under coloured wheel noise, which the bootstrap removes on every
+    /// preset (the known noise model fixed, 12 km, 20 seeds, B = 10: c_e t
+    /// 14–35 → 0.5–0.8; the analytic first-order correction, `FirstOrderBias` (feature `research`),
+    /// does not). With the sideslip error a filter state (the default) the fit
+    /// has no c_e bias left; what remains under heavy wheel noise is t_r's and
+    /// d's. Measured (`study_eiv --km 12 --seeds 20 --methods est --bootstrap
+    /// 10 --bootstrap-smooth 20` in crates/odocal-lab, η estimated, every
+    /// parameter corrected, replicates on the smoothed trajectory holding the
+    /// fitted noise model; mean error (t), coverage of the 95 % interval over
+    /// the four parameters):
+    ///
+    /// | preset | t_r uncorrected | t_r corrected | d corrected | largest \|t\| | coverage |
+    /// |---|---|---|---|---|---|
+    /// | high | +1.097 % (4.5) | +0.531 % (1.9) | −0.083 (1.3) | 1.9 | 86.3 → 95.0 % |
+    /// | paper | +0.220 % (3.1) | +0.211 % (2.6) | −0.033 (1.8) | 2.6 | 96.3 → 93.8 % |
+    /// | white | +0.073 % (1.3) | +0.059 % (1.0) | +0.002 (0.1) | 1.0 | 97.5 → 97.5 % |
+    /// | coloured | +0.093 % (1.7) | +0.095 % (1.4) | −0.010 (0.6) | 1.4 | 93.8 → 92.5 % |
+    ///
+    /// With independent replicates that correction adds Monte Carlo noise: the
+    /// corrected t_r is more spread (RMS/CRB on paper 1.69 → 1.82) and
+    /// fresh-drive Ē_p 1–4 cm worse. Antithetic pairs
+    /// ([`EivOptions::bootstrap_antithetic`](crate::eiv::EivOptions::bootstrap_antithetic), set by
+    /// `EivOptions::correct_bias`), whose means cancel the replicates' odd
+    /// error, remove the same bias with B = 4 (high t_r +0.458 %, t 1.9;
+    /// largest |t| 2.8 on paper) and the RMS error falls (t_r on high 5.38 →
+    /// 4.01× the bound, paper 1.69 → 1.62×), coverage 93.8 / 96.3 / 97.5 /
+    /// 95.0 %. It is the EIV method's default in `calibrate`
+    /// (`calibrate::EivMethodOptions::correct_bias`, the CLI's `--correct-bias
+    /// B` / `--no-bias-correction`); `estimate` applies what this field says
+    /// (default none). The subtracted bias is a mean over the replicates (or
+    /// pairs); its Monte Carlo covariance is added to θ's
+    /// (`EivReport::sigma_bias_correction`).
+    ///
+    /// The replicates hold the fitted noise model (`EivReport::noise`,
+    /// `fix_noise`): they estimate the bias of θ̂ at the fitted noise. Measured
+    /// against replicates that re-estimate the noise (the command above): t_r on
+    /// `high` +0.531 % (t 1.9) held, −0.676 % (t −2.4; d t 3.0) re-estimated,
+    /// which over-corrects (its replicates, in worlds made from the fitted
+    /// noise model, shift t_r by 1.8 % where the drive's own fit is off by
+    /// 1.1 %) at three times the cost; c_e alone is corrected the same either
+    /// way (`--bootstrap-reestimate-seeds 20` gives the re-estimating rows).
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum BiasCorrection {
+        /// The root of the profile cost as is.
+        #[default]
+        None,
+        /// The parametric `bootstrap` bias (B re-simulations of the fitted
+        /// noise at θ̂, each re-fitted without correction) subtracted:
+        /// `θ̂ − (mean of the replicates − θ̂)`, for the named parameters of θ
+        /// (those of them the fit estimates). About B more fits.
+        Bootstrap {
+            /// Replicates B (at least 2).
+            replicates: usize,
+            /// Seed of the replicates' random streams.
+            seed: u64,
+            /// The parameters of θ corrected (not empty; no extrinsic); the
+            /// others keep the fit's value.
+            parameters: ParamSet,
+        },
+    }
 }
 
 /// Half-width of the moving average ([`BootstrapInputs::Smoothed`](crate::eiv::BootstrapInputs::Smoothed)) the

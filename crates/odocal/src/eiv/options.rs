@@ -160,26 +160,6 @@ pub struct EivOptions {
     /// Whether the reference's heading white noise has its own scale η_5.
     /// Default [`HeadingScale::Separate`] (see its docs).
     pub heading_scale: HeadingScale,
-    /// Correction of the profile cost's bias applied to the estimate.
-    /// Default `BiasCorrection::None` (see its docs).
-    pub bias_correction: BiasCorrection,
-    /// The true inputs of the replicate worlds of
-    /// `BiasCorrection::Bootstrap`. Default [`BootstrapInputs::Measured`];
-    /// `EivOptions::correct_bias` sets `Smoothed { half_width_samples: 20 }`,
-    /// which removes the t_r bias on `high` (docs/validation.md, "Simulated
-    /// drives against the Cramér–Rao bound").
-    pub bootstrap_inputs: BootstrapInputs,
-    /// The replicates of `BiasCorrection::Bootstrap` come in antithetic
-    /// pairs ([`BootstrapOptions::antithetic`](crate::eiv::BootstrapOptions::antithetic); B must be even). Default
-    /// false; `EivOptions::correct_bias` sets it.
-    pub bootstrap_antithetic: bool,
-    /// Values at which parameters that the filter names unobservable (with
-    /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
-    /// holds them at the start θ given to `estimate`. `calibrate` passes
-    /// the calibration's θ_0: the start is batch G-N's estimate, which for
-    /// a parameter the data cannot determine can be far off (on the RAV4
-    /// drive, t_r = 5.63 m, so the result was rejected as implausible).
-    pub hold_unobservable_at: Option<Theta>,
     /// The estimator's modelling alternatives; public with the cargo
     /// feature `research` (the studies of crates/odocal-lab), otherwise
     /// always their defaults (`EivOptions::spec` aside).
@@ -200,6 +180,26 @@ macro_rules! research_options {
         #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
         #[serde(default)]
         pub struct ResearchOptions {
+            /// Correction of the profile cost's bias applied to the estimate.
+            /// Default `BiasCorrection::None` (see its docs).
+            $vis bias_correction: BiasCorrection,
+            /// The true inputs of the replicate worlds of
+            /// `BiasCorrection::Bootstrap`. Default `BootstrapInputs::Measured`;
+            /// `EivOptions::correct_bias` sets `Smoothed { half_width_samples: 20 }`,
+            /// which removes the t_r bias on `high` (docs/validation.md, "Simulated
+            /// drives against the Cramér–Rao bound").
+            $vis bootstrap_inputs: BootstrapInputs,
+            /// The replicates of `BiasCorrection::Bootstrap` come in antithetic
+            /// pairs (`BootstrapOptions::antithetic`; B must be even). Default
+            /// false; `EivOptions::correct_bias` sets it.
+            $vis bootstrap_antithetic: bool,
+            /// Values at which parameters that the filter names unobservable (with
+            /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
+            /// holds them at the start θ given to `estimate`. `calibrate` passes
+            /// the calibration's θ_0: the start is batch G-N's estimate, which for
+            /// a parameter the data cannot determine can be far off (on the RAV4
+            /// drive, t_r = 5.63 m, so the result was rejected as implausible).
+            $vis hold_unobservable_at: Option<Theta>,
             /// How the covariance recursion depends on θ. Default
             /// [`CovarianceMode::FollowsTheta`].
             $vis covariance: CovarianceMode,
@@ -442,6 +442,10 @@ research_options!(pub(crate));
 impl Default for ResearchOptions {
     fn default() -> Self {
         ResearchOptions {
+            bias_correction: BiasCorrection::None,
+            bootstrap_inputs: BootstrapInputs::Measured,
+            bootstrap_antithetic: false,
+            hold_unobservable_at: None,
             covariance: CovarianceMode::FollowsTheta,
             passes: 2,
             covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
@@ -537,16 +541,19 @@ impl Default for EivOptions {
             heading_scale: HeadingScale::Separate,
             quantisation_level: QuantisationLevel::FromReadings,
             lateral_noise: LateralNoise::TiedToWheelWhite,
-            bias_correction: BiasCorrection::None,
-            bootstrap_inputs: BootstrapInputs::Measured,
-            bootstrap_antithetic: false,
-            hold_unobservable_at: None,
             research: ResearchOptions::default(),
         }
     }
 }
 
 impl EivOptions {
+    /// These options without the bias correction (`BiasCorrection::None`).
+    pub(crate) fn without_bias_correction(&self) -> EivOptions {
+        let mut o = self.clone();
+        o.research.bias_correction = BiasCorrection::None;
+        o
+    }
+
     /// Whether the heading white noise is held as known while its scale is
     /// tied to the position white noise's, which is estimated: a
     /// contradiction (with pose_white held too, the tied scale is held with
@@ -649,7 +656,7 @@ impl EivOptions {
     research_pub! {
         /// Subtracts the estimator's own bias from the `parameters` of θ,
         /// estimated by a parametric bootstrap of `replicates` re-simulations (seed `seed`;
-        /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
+        /// an even number: antithetic pairs, [`ResearchOptions::bootstrap_antithetic`])
         /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
         /// each holding the fitted noise model:
         /// what the EIV method of `calibrate` applies by default (B = 4), the
@@ -664,8 +671,8 @@ impl EivOptions {
         /// let c_e: ParamSet = [Param::CE].into_iter().collect();
         /// let mut o = EivOptions::default();
         /// o.correct_bias(10, 0, c_e);
-        /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, parameters: c_e });
-        /// assert!(o.bootstrap_antithetic);
+        /// assert_eq!(o.research.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, parameters: c_e });
+        /// assert!(o.research.bootstrap_antithetic);
         /// assert!(o.validate().is_ok());
         /// o.correct_bias(5, 0, c_e); // an odd B cannot be paired
         /// assert!(o.validate().is_err());
@@ -674,9 +681,10 @@ impl EivOptions {
         /// # }
         /// ```
         fn correct_bias(&mut self, replicates: usize, seed: u64, parameters: ParamSet) {
-            self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, parameters };
-            self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
-            self.bootstrap_antithetic = true;
+            self.research.bias_correction = BiasCorrection::Bootstrap { replicates, seed, parameters };
+            self.research.bootstrap_inputs =
+                BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
+            self.research.bootstrap_antithetic = true;
         }
     }
 
@@ -733,20 +741,20 @@ impl EivOptions {
                      use the separate heading scale, or state pose_white as known",
                 );
             }
-            if let Some(t) = &self.hold_unobservable_at {
+            if let Some(t) = &self.research.hold_unobservable_at {
                 t.validate().map_err(|e| Error::InvalidOption {
                     field: "hold_unobservable_at",
                     reason: format!("{e}; give a usable θ (or None to hold at the start)"),
                 })?;
             }
-            if let BiasCorrection::Bootstrap { replicates, parameters, .. } = self.bias_correction {
+            if let BiasCorrection::Bootstrap { replicates, parameters, .. } = self.research.bias_correction {
                 if let Some(problem) = correctable_problem(parameters) {
                     return bad("bias_correction", &problem);
                 }
                 if replicates < 2 {
                     return bad("bias_correction", "the bootstrap needs at least 2 replicates");
                 }
-                if self.bootstrap_antithetic && !replicates.is_multiple_of(2) {
+                if self.research.bootstrap_antithetic && !replicates.is_multiple_of(2) {
                     return bad(
                         "bias_correction",
                         "antithetic pairs (bootstrap_antithetic) need an even number of replicates",

@@ -238,7 +238,7 @@ impl<'p> Pass<'p> {
         } else {
             (free0, Vec::new(), None)
         };
-        if let Some(held) = opts.hold_unobservable_at.filter(|_| free != free0) {
+        if let Some(held) = opts.research.hold_unobservable_at.filter(|_| free != free0) {
             let (mut a, h) = (theta.to_array(), held.to_array());
             for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
                 a[i] = h[i];

@@ -127,7 +127,7 @@ impl TryFrom<&ParamFile> for Theta {
 
 impl ParamFile {
     /// Whether `path` names a parameter file by its extension (`.yaml`,
-    /// `.yml`, `.json`: the files [`ParamFile::write`] writes and
+    /// `.yml`, `.json`: the files [`ParamFile::text_for`] writes and
     /// [`ParamFile::read`] reads), e.g. to tell one from a θ typed as text.
     pub fn is_param_file(path: &Path) -> bool {
         FileFormat::of(path).is_some()
@@ -349,16 +349,9 @@ impl ParamFile {
         v
     }
 
-    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`, atomically
-    /// ([`crate::output::write_text`]).
-    ///
-    /// # Errors
-    /// [`Error::ParamFile`] naming the path for another extension or for
-    /// values [`ParamFile::read`] would refuse (a value or σ not finite, a
-    /// negative σ, θ or the extrinsics outside their physical limits: nothing
-    /// is written); [`Error::InvalidOption`] for a node that is no ROS 2 node
-    /// name ([`ParamFile::check_node_name`]); [`Error::Io`].
-    pub fn write(&self, path: &Path) -> Result<()> {
+    /// Writes [`ParamFile::text_for`] to `path`, atomically.
+    #[cfg(test)]
+    pub(crate) fn write(&self, path: &Path) -> Result<()> {
         crate::output::write_text(path, &self.text_for(path)?)
     }
 
@@ -385,13 +378,29 @@ impl ParamFile {
         Ok(())
     }
 
-    /// The text [`ParamFile::write`] writes to `path`: the ROS 2 parameter
-    /// file (YAML) for a `.yaml`/`.yml` path and for `-` (stdout, where a
-    /// front end writes it), JSON for `.json`. Numbers are written in
-    /// shortest round-trip form, so reading them back gives the same f64.
+    /// The text of the parameter file at `path`: the ROS 2 parameter file
+    /// (YAML) for a `.yaml`/`.yml` path and for `-` (stdout, where a front
+    /// end writes it), JSON for `.json`. Numbers are written in shortest
+    /// round-trip form, so reading them back gives the same f64. Write it
+    /// with [`crate::output::write_text`] (atomically), or with a front
+    /// end's other outputs as one ([`crate::output::write_texts`]).
+    ///
+    /// ```
+    /// use odocal::{ParamFile, Theta};
+    /// let dir = tempfile::tempdir()?;
+    /// let path = dir.path().join("odocal.yaml");
+    /// let f = ParamFile::from_theta(&Theta::PAPER_NOMINAL, [None; 4], "drive.csv", "eiv");
+    /// odocal::output::write_text(&path, &f.text_for(&path)?)?;
+    /// assert_eq!(ParamFile::read(&path, None)?.node, f.node);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     ///
     /// # Errors
-    /// As [`ParamFile::write`], but for [`Error::Io`].
+    /// [`Error::ParamFile`] naming the path for another extension or for
+    /// values [`ParamFile::read`] would refuse (a value or σ not finite, a
+    /// negative σ, θ or the extrinsics outside their physical limits);
+    /// [`Error::InvalidOption`] for a node that is no ROS 2 node name
+    /// ([`ParamFile::check_node_name`]).
     pub fn text_for(&self, path: &Path) -> Result<String> {
         ParamFile::check_node_name(&self.node)?;
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
@@ -452,7 +461,7 @@ const EXTRINSIC_INFO: [(&str, &str, &str); 3] = [
 ];
 
 impl ParamFile {
-    /// Reads a parameter file as [`ParamFile::write`] writes it (and as a
+    /// Reads a parameter file as [`ParamFile::text_for`] writes it (and as a
     /// user may edit it): a ROS 2 parameter file (`.yaml`/`.yml`: the node
     /// whose `ros__parameters` hold `c_e`, or the only node) or odocal's JSON
     /// (`.json`). `c_e`, `c_d`, `t_r` and `d` are required (SI units, checked
@@ -472,7 +481,8 @@ impl ParamFile {
     /// std::fs::create_dir_all(&dir)?;
     /// let path = dir.join("odocal.yaml");
     /// let theta = Theta { c_e: 1.951448, c_d: -0.0021, t_r: 1.5649, d: 0.0008 };
-    /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
+    /// let f = ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv");
+    /// odocal::output::write_text(&path, &f.text_for(&path)?)?;
     /// let back = ParamFile::read(&path, None)?;
     /// assert_eq!(Theta::try_from(&back)?, theta);
     /// # std::fs::remove_dir_all(&dir)?;
@@ -641,7 +651,7 @@ impl ParamFile {
     }
 
     /// The rules [`ParamFile::read`] holds a file's values to, which
-    /// [`ParamFile::write`] holds them to too: every value and σ a finite
+    /// [`ParamFile::text_for`] holds them to too: every value and σ a finite
     /// number, no σ negative, θ within the physical limits
     /// ([`Theta::check_physical_limits`]), the extrinsics within theirs.
     fn check_values(&self) -> std::result::Result<(), String> {

@@ -139,25 +139,29 @@ pub struct ExtrinsicsEstimate {
     /// reference's heading bias changes from drive to drive), in drive
     /// order. `value.heading_offset` is then their mean (the value carried
     /// to another drive by `--carry-heading-offset`) and
-    /// `std_dev.heading_offset` its σ. Empty otherwise.
+    /// `std_dev.heading_offset` its σ. Empty otherwise. In JSON
+    /// `per_drive`; the reports' `heading_offset_per_drive` names each
+    /// drive.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub per_drive: Vec<DriveHeadingOffset>,
+    pub(crate) per_drive: Vec<DriveHeadingOffset>,
 }
 
-/// One drive's reference heading offset in a joint calibration
-/// ([`ExtrinsicsEstimate::per_drive`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct DriveHeadingOffset {
-    /// The drive's index among the drives joined
-    /// ([`crate::Drive::drive_starts`]).
-    pub drive: usize,
-    /// Its heading offset, rad.
-    pub value: f64,
-    /// Its model 1σ, rad.
-    pub std_dev: f64,
-    /// Its cluster-robust 1σ, rad, when computed.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub robust_std_dev: Option<f64>,
+research_pub! {
+    /// One drive's reference heading offset in a joint calibration
+    /// (`ExtrinsicsEstimate::per_drive`).
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    struct DriveHeadingOffset {
+        /// The drive's index among the drives joined
+        /// ([`crate::Drive::drive_starts`]).
+        pub drive: usize,
+        /// Its heading offset, rad.
+        pub value: f64,
+        /// Its model 1σ, rad.
+        pub std_dev: f64,
+        /// Its cluster-robust 1σ, rad, when computed.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub robust_std_dev: Option<f64>,
+    }
 }
 
 impl DriveHeadingOffset {
@@ -179,6 +183,14 @@ pub struct RobustExtrinsics {
 }
 
 impl ExtrinsicsEstimate {
+    research_pub! {
+        /// A joint calibration's heading offset of each drive, in drive order
+        /// (empty for one drive or the heading offset held).
+        fn per_drive(&self) -> &[DriveHeadingOffset] {
+            &self.per_drive
+        }
+    }
+
     /// The 1σ that stands for the estimate: the cluster-robust σ when it
     /// was computed (as for θ's result σ), else the model σ; 0 for held entries.
     pub(crate) fn result_std_dev(&self) -> Extrinsics {
@@ -186,7 +198,7 @@ impl ExtrinsicsEstimate {
     }
 
     /// The extrinsics that apply to drive `k` of a joint calibration: its
-    /// own heading offset when [`ExtrinsicsEstimate::per_drive`] has it,
+    /// own heading offset when `per_drive` has it,
     /// else `value`.
     pub(crate) fn for_drive(&self, k: usize) -> Extrinsics {
         match self.per_drive.iter().find(|p| p.drive == k) {

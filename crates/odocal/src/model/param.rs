@@ -137,8 +137,9 @@ impl std::str::FromStr for Param {
 ///
 /// ```
 /// use odocal::{Param, ParamSet};
-/// let free = ParamSet::from_iter([Param::CE, Param::CD, Param::TR, Param::D]).without(Param::D);
+/// let free = ParamSet::from_iter([Param::CE, Param::CD, Param::TR]);
 /// assert_eq!(free.to_string(), "c_e, c_d, t_r");
+/// assert!(free.contains(Param::TR) && !free.contains(Param::D));
 /// assert_eq!("c_d,t_r".parse::<ParamSet>().unwrap(), ParamSet::from_iter([Param::CD, Param::TR]));
 /// ```
 #[derive(Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -169,10 +170,13 @@ impl ParamSet {
         }
     }
 
-    /// The set with `p` removed.
-    #[must_use]
-    pub const fn without(self, p: Param) -> ParamSet {
-        ParamSet(self.0 & !(1 << p as u32))
+    research_pub! {
+        /// The set with `p` removed (outside the crate: collect the set's
+        /// parameters but `p`).
+        #[must_use]
+        const fn without(self, p: Param) -> ParamSet {
+            ParamSet(self.0 & !(1 << p as u32))
+        }
     }
 
     /// Adds `p`.

@@ -64,8 +64,8 @@
 //! white wheel noise. `random:N` (`"random:7".parse::<NoiseOptions>()`)
 //! draws a whole noise world from wide ranges instead — each source's size, its correlation
 //! time, the constant errors — reproducibly from a world seed, and
-//! [`WorldSummary`] says which kind of wheel noise dominates it
-//! ([`NoiseRegime`]). `odocal simulate --noise random:N` simulates world N.
+//! [`NoiseOptions::world_summary`] says which kind of wheel noise dominates
+//! it. `odocal simulate --noise random:N` simulates world N.
 
 use std::path::Path;
 

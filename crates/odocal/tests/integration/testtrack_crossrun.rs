@@ -199,7 +199,7 @@ fn batch_gn_all_segments() -> CalibrationOptions {
 
 fn batch_gn_all_segments_d_held() -> CalibrationOptions {
     let mut opts = batch_gn_all_segments();
-    opts.identify.free = opts.identify.free.without(Param::D);
+    opts.identify.free = opts.identify.free.into_iter().filter(|p| *p != Param::D).collect();
     opts
 }
 

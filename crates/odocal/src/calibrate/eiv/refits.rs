@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::{is_misspecification, HeldNoiseReleased};
-use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarning, NoiseSource};
+use crate::eiv::{self, EivInput, EivOptions, EivReport, EivWarning, NoiseSource};
 use crate::model::Theta;
 
 /// The refit after a fit that failed its checks with a noise scale at its
@@ -183,7 +183,7 @@ pub(super) fn release_held_noise(
     if held.is_empty() || filter.fix_noise {
         return None;
     }
-    let released = EivOptions { eta_held: [false; 6], bias_correction: BiasCorrection::None, ..filter.clone() };
+    let released = EivOptions { eta_held: [false; 6], ..filter.without_bias_correction() };
     let first = eiv::estimate(input, theta, &released).ok()?;
     let fit = refit_with_sources_released(input, theta, &released, &first).unwrap_or(first);
     let findings = fit.warnings.iter().filter(|w| is_misspecification(w, &fit)).cloned().collect();

@@ -102,7 +102,7 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
     let c_e: ParamSet = [Param::CE].into_iter().collect();
     for parameters in [c_e, c_e.with(Param::TR), ParamSet::THETA] {
         let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 3, parameters };
-        let r = estimate(&input, &start, &EivOptions { bias_correction: corr, ..opts.clone() }).expect("eiv");
+        let r = estimate(&input, &start, &with_correction(&opts, corr)).expect("eiv");
         assert_eq!(r.theta_uncorrected, plain.theta);
         let named: [bool; 4] = std::array::from_fn(|i| parameters.contains(Param::THETA[i]));
         let want: [f64; 4] = std::array::from_fn(|i| if named[i] { boot.bias[i] } else { 0.0 });
@@ -129,12 +129,12 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
         }
     }
     let one = BiasCorrection::Bootstrap { replicates: 1, seed: 0, parameters: c_e };
-    let bad = EivOptions { bias_correction: one, ..opts.clone() };
+    let bad = with_correction(&opts, one);
     assert!(matches!(bad.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
     // Only θ's parameters, and at least one of them, can be corrected.
     for parameters in [ParamSet::default(), ParamSet::EXTRINSICS, c_e.with(Param::HeadingOffset)] {
         let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 0, parameters };
-        let bad = EivOptions { bias_correction: corr, ..opts.clone() };
+        let bad = with_correction(&opts, corr);
         let err = bad.validate();
         assert!(matches!(err, Err(Error::InvalidOption { field: "bias_correction", .. })), "{parameters}: {err:?}");
     }
@@ -151,8 +151,8 @@ fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
     let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(5) }).expect("sim");
     let input = input_of(&out.drive);
     let start = out.sidecar.theta_true;
-    let opts =
-        EivOptions { bootstrap_inputs: BootstrapInputs::Smoothed { half_width_samples: 20 }, ..Default::default() };
+    let mut opts = EivOptions::default();
+    opts.research.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: 20 };
     let plain = estimate(&input, &start, &opts).expect("eiv");
     assert!(plain.eta.iter().any(|e| *e != 0.0), "the noise scales were not estimated: {:?}", plain.eta);
     // ∂η̂/∂θ: rows of the estimated sources (σ > 0) only, columns of the free parameters only.
@@ -176,7 +176,7 @@ fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
     let held = EivOptions { noise: plain.noise, fix_noise: true, ..opts.clone() };
     let boot = bootstrap(&input, &plain, &held, &boot_opts).expect("bootstrap");
     let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 4, parameters: ParamSet::THETA };
-    let r = estimate(&input, &start, &EivOptions { bias_correction: corr, ..opts.clone() }).expect("eiv");
+    let r = estimate(&input, &start, &with_correction(&opts, corr)).expect("eiv");
     assert_eq!(r.theta_uncorrected, plain.theta);
     assert_eq!(r.bias_subtracted.map(f64::to_bits), boot.bias.map(f64::to_bits));
     let reestimating = bootstrap(&input, &plain, &opts, &boot_opts).expect("bootstrap");
@@ -252,7 +252,7 @@ fn antithetic_pairs_average_out_the_replicates_odd_error() {
     // The correction (held noise: here the fixed model, as the fit's) subtracts that bootstrap's bias.
     let mut o = opts.clone();
     o.correct_bias(8, 4, ParamSet::THETA);
-    assert!(o.bootstrap_antithetic);
+    assert!(o.research.bootstrap_antithetic);
     let r = estimate(&input, &start, &o).expect("eiv");
     assert_eq!(r.theta_uncorrected, fit.theta);
     assert_eq!(r.bias_subtracted.map(f64::to_bits), anti.bias.map(f64::to_bits));
@@ -356,15 +356,16 @@ fn one_step_replicates_move_the_correction_by_a_small_fraction_of_sigma() {
         let r = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
         // The bootstrap the correction runs, with converged replicates.
         let inner = EivOptions {
-            bias_correction: BiasCorrection::None,
             noise: r.noise,
             fix_noise: true,
-            ..opts.with_resolved_readings(r.quantisation_step_from_readings, r.a_y_noise_floor)
+            ..opts
+                .with_resolved_readings(r.quantisation_step_from_readings, r.a_y_noise_floor)
+                .without_bias_correction()
         };
         let boot = BootstrapOptions {
             replicates: 4,
             seed: 0,
-            true_inputs: opts.bootstrap_inputs,
+            true_inputs: opts.research.bootstrap_inputs,
             antithetic: true,
             refit: BootstrapRefit::Converged,
             ..Default::default()
@@ -393,3 +394,10 @@ fn one_step_replicates_move_the_correction_by_a_small_fraction_of_sigma() {
 /// high noise, where the correction's own Monte Carlo error, the spread
 /// over bootstrap seeds, is 0.2–0.26 σ for t_r and d).
 const ONE_STEP_TOLERANCE_SIGMA: f64 = 0.1;
+
+/// `opts` with the bias correction `corr`.
+fn with_correction(opts: &EivOptions, corr: BiasCorrection) -> EivOptions {
+    let mut o = opts.clone();
+    o.research.bias_correction = corr;
+    o
+}

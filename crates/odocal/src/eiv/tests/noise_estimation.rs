@@ -281,7 +281,7 @@ fn a_scale_sent_to_its_lower_clamp_early_comes_back() {
     let out = simulate(&SimOptions { length_km: 6.0, noise, ..SimOptions::paper(4) }).expect("sim");
     let input = input_of(&out.drive);
     let start = batch_gn_all(&out.drive);
-    let opts = EivOptions { bias_correction: BiasCorrection::None, ..EivOptions::default() };
+    let opts = EivOptions::default();
     let fit = estimate(&input, &start, &opts).expect("eiv");
     let lower = opts.eta_bounds[0];
     let drift = NoiseSource::PoseDrift.index();
@@ -330,7 +330,7 @@ fn the_slow_wheel_noise_model_is_chosen_by_m() {
         let out = simulate(&SimOptions { length_km: 8.0, noise: slow_wheel_noise(), ..SimOptions::paper(seed) })
             .expect("sim");
         let input = input_of(&out.drive);
-        let mut opts = EivOptions { bias_correction: BiasCorrection::None, ..EivOptions::default() };
+        let mut opts = EivOptions::default();
         opts.research.choose_time_constants = choose;
         (estimate(&input, &batch_gn_all(&out.drive), &opts).expect("eiv"), out.sidecar.theta_true)
     };

@@ -91,7 +91,6 @@ fn creep_options_for(ticks: f64) -> EivOptions {
         fix_noise: true,
         quantisation: QuantisationModel::Counting,
         quantisation_level: QuantisationLevel::Given,
-        bias_correction: BiasCorrection::None,
         ..Default::default()
     }
 }

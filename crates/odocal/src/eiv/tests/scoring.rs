@@ -155,11 +155,13 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     let bad_start = Theta { c_e: 1.96, t_r: 5.63, d: 0.01, ..th };
     let at_start = estimate(&input, &bad_start, &EivOptions::default()).expect("eiv");
     assert_eq!((at_start.theta.t_r, at_start.theta.d), (5.63, 0.01), "{at_start}");
-    let held = EivOptions { hold_unobservable_at: Some(th), ..Default::default() };
+    let mut held = EivOptions::default();
+    held.research.hold_unobservable_at = Some(th);
     let at_theta0 = estimate(&input, &bad_start, &held).expect("eiv");
     assert_eq!((at_theta0.theta.t_r, at_theta0.theta.d), (th.t_r, th.d), "{at_theta0}");
     assert!((at_theta0.theta.c_e - th.c_e).abs() < 1e-6, "{at_theta0}");
-    let invalid = EivOptions { hold_unobservable_at: Some(Theta { t_r: f64::NAN, ..th }), ..Default::default() };
+    let mut invalid = EivOptions::default();
+    invalid.research.hold_unobservable_at = Some(Theta { t_r: f64::NAN, ..th });
     assert!(estimate(&input, &bad_start, &invalid).is_err());
 }
 
