@@ -34,7 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("method {}: θ: {}", report.method, report.theta);
     for ((name, value), s) in names.iter().zip(<[_; 4]>::from(report.theta)).zip(<[_; 4]>::from(sigma)) {
         match s {
-            Some(s) => println!("  {name:11} {value:+.6} ± {s:.6} (1σ, {})", sigma.source),
+            Some(s) => println!("  {name:11} {value:+.6} ± {s:.6} (1σ, {})", sigma.covers),
             None => println!("  {name:11} {value:+.6} (held)"),
         }
     }

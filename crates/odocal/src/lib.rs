@@ -184,7 +184,7 @@ pub use calibrate::{
     calibrate,
     drive_fit::validate,
     eiv::{CorrectBias, EivMethodOptions},
-    report::{CalibrationReport, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, ValidationSummary},
+    report::{CalibrationReport, ResultSigma, SegmentCounts, SigmaCovers, ThetaScore, ValidationSummary},
     settings,
     three_step::{FinalSegments, ThreeStepOptions},
     Calibration, CalibrationOptions, Holdout, Method,
@@ -209,7 +209,7 @@ research_pub! {
     mod research {
         research_use! {
             crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum},
-            crate::calibrate::report::Timing,
+            crate::calibrate::report::{SigmaSource, Timing},
             crate::model::extrinsics::DriveHeadingOffset,
             crate::calibrate::{
                 calibrate_detailed,

@@ -336,7 +336,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
     Ok(Run {
         theta: r.theta,
         sigma: <[_; 4]>::from(rs).map(|s| s.unwrap_or(f64::NAN)),
-        sigma_source: rs.source.to_string(),
+        sigma_source: rs.source().to_string(),
         within,
         verdict: r.verdict.level,
         accepted_within,

@@ -369,7 +369,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
                 "theta": r.theta,
                 "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": result_sigma(&r),
-                "sigma_source": r.result_sigma().source,
+                "sigma_source": r.result_sigma().source(),
                 "verdict": verdict_json(&r),
                 "own_m": r.validation.mean_position_error_m,
                 "others_m": v.mean_over_drives_m,
@@ -591,7 +591,7 @@ fn van(methods: &[String], md: &mut String) -> Res<Value> {
                 "theta": r.theta,
                 "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": result_sigma(&r),
-                "sigma_source": r.result_sigma().source,
+                "sigma_source": r.result_sigma().source(),
                 "held_out_m": r.validation.mean_position_error_m,
                 "initial_held_out_m": r.initial.mean_position_error_m,
                 "verdict": verdict_json(&r),
@@ -662,9 +662,9 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
                 // (for the next drive: within ⊕ between) beside it.
                 match (r.within_drive_sigma().c_e, sigma[0]) {
                     (Some(w), Some(s)) if r.result_sigma().covers == SigmaCovers::NextDrive => {
-                        format!("{w:.5} ({}; next drive {s:.5})", r.result_sigma().source)
+                        format!("{w:.5} ({}; next drive {s:.5})", r.result_sigma().source())
                     }
-                    (_, Some(s)) => format!("{s:.5} ({})", r.result_sigma().source),
+                    (_, Some(s)) => format!("{s:.5} ({})", r.result_sigma().source()),
                     (_, None) => "held".into(),
                 },
                 if r.observability.unobservable.is_empty() {
@@ -688,7 +688,7 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
                 "theta": r.theta,
                 "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": sigma,
-                "sigma_source": r.result_sigma().source,
+                "sigma_source": r.result_sigma().source(),
                 "unobservable": r.observability.unobservable.into_iter().map(|p| p.to_string()).collect::<Vec<_>>(),
                 "rcond": r.observability.rcond,
                 "auto_fixed": r.auto_fixed.iter().map(|p| p.to_string()).collect::<Vec<_>>(),

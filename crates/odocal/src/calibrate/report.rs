@@ -560,23 +560,25 @@ fn eiv_without_heading_drift_floor(detail: &MethodDetail) -> Option<(&Theta, &Th
     (d.eiv_result == EivOutcome::Eiv && !d.refit).then_some((&e.theta_uncorrected, without))
 }
 
-/// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SigmaSource {
-    /// batch-gn's cluster-robust covariance (`RobustCovariance`).
-    ClusterRobust,
-    /// The 3-step method's step-1 batch spread: the sample covariance of its
-    /// plausible batch estimates, scaled to all the data.
-    BatchSpread,
-    /// The model covariance ([`CalibrationReport::covariance`]): EIV's
-    /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
-    /// sandwich, plus what estimating the noise levels adds;
-    /// `crate::eiv::EivReport::covariance`) (after an EIV fallback the start's cluster-robust σ stands,
-    /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
-    /// batch-spread σ could not be computed (then it understates the
-    /// uncertainty under input noise).
-    Model,
+research_pub! {
+    /// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "kebab-case")]
+    enum SigmaSource {
+        /// batch-gn's cluster-robust covariance (`RobustCovariance`).
+        ClusterRobust,
+        /// The 3-step method's step-1 batch spread: the sample covariance of its
+        /// plausible batch estimates, scaled to all the data.
+        BatchSpread,
+        /// The model covariance ([`CalibrationReport::covariance`]): EIV's
+        /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
+        /// sandwich, plus what estimating the noise levels adds;
+        /// `crate::eiv::EivReport::covariance`) (after an EIV fallback the start's cluster-robust σ stands,
+        /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
+        /// batch-spread σ could not be computed (then it understates the
+        /// uncertainty under input noise).
+        Model,
+    }
 }
 
 impl SigmaSource {
@@ -618,13 +620,14 @@ impl std::fmt::Display for SigmaCovers {
 }
 
 /// The 1σ of a calibration's result, per parameter (SI units; `None` for
-/// a parameter held), which covariance its within-drive part comes from
-/// and what it covers. In JSON:
+/// a parameter held), and what it covers. In JSON, with which covariance
+/// its within-drive part comes from (`source`, as the parameter file's
+/// provenance `sigma` names it):
 /// `{"source": "batch-spread", "covers": "next-drive", "c_e": …, "c_d": …, "t_r": …, "d": null}`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ResultSigma {
     /// Which covariance the within-drive part comes from.
-    pub source: SigmaSource,
+    pub(crate) source: SigmaSource,
     /// What the σ covers: the next drive (within-drive ⊕ between-drive) or
     /// this drive only.
     #[serde(default)]
@@ -640,6 +643,13 @@ pub struct ResultSigma {
 }
 
 impl ResultSigma {
+    research_pub! {
+        /// Which covariance the within-drive part comes from.
+        fn source(&self) -> SigmaSource {
+            self.source
+        }
+    }
+
     /// `[c_e, c_d, t_r, d]` (outside the crate: `<[Option<f64>; 4]>::from(sigma)`).
     pub(crate) fn to_array(self) -> [Option<f64>; 4] {
         [self.c_e, self.c_d, self.t_r, self.d]
