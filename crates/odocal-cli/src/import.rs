@@ -37,16 +37,16 @@ pub fn run(a: ImportArgs) -> Result<()> {
     let m = odocal::Manifest::from_path(&a.manifest)?;
     // The calibration settings are checked too, so a bad one is named now.
     odocal::settings::ManifestSettings::try_from(&m)?;
-    let imported = odocal::import(&m)?;
-    write_drive(&imported.drive, &a.out)?;
+    let (drive, mut report) = odocal::import(&m)?;
+    write_drive(&drive, &a.out)?;
     // Warnings go to stderr, whichever outputs take stdout.
-    for w in &imported.report.warnings {
+    for w in &report.warnings {
         eprintln!("warning: {w}");
     }
     if let Some(p) = &a.json {
-        let mut v = odocal::settings::import_report_json(&imported.report)?;
+        let mut v = odocal::settings::import_report_json(&report)?;
         if let Some(obj) = v.as_object_mut() {
-            obj.insert("fingerprint".into(), imported.drive.fingerprint().into());
+            obj.insert("fingerprint".into(), drive.fingerprint().into());
         }
         write_json(p, v)?;
         if is_stdout(p) {
@@ -55,7 +55,6 @@ pub fn run(a: ImportArgs) -> Result<()> {
     }
     // With the CSV on stdout, the report goes to stderr; its warnings went
     // to stderr above.
-    let mut report = imported.report;
     report.warnings.clear();
     report_line(is_stdout(&a.out), report.to_string().trim_end());
     if !is_stdout(&a.out) {

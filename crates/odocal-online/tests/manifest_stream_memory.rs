@@ -113,7 +113,7 @@ fn flat_in_the_drive_length(bank: bool) {
         }
         write_manifest(manifest, name, bank);
     }
-    let whole = |p: &Path| odocal::import(&Manifest::from_path(p).expect("manifest")).expect("import").drive.len();
+    let whole = |p: &Path| odocal::import(&Manifest::from_path(p).expect("manifest")).expect("import").0.len();
     let (n_short, n_long) = (whole(&short), whole(&long));
     let p_short = peak_of(|| assert_eq!(follow_file(&short), n_short));
     let p_long = peak_of(|| assert_eq!(follow_file(&long), n_long));

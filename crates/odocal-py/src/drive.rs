@@ -248,12 +248,12 @@ fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> 
     let m = odocal::Manifest::from_path(path)?;
     // The calibration settings are checked too, so a bad one is named now.
     ManifestSettings::try_from(&m)?;
-    let imported = odocal::import(&m)?;
-    let import_report = serde_json::to_string_pretty(&odocal::settings::import_report_json(&imported.report)?)
+    let (drive, report) = odocal::import(&m)?;
+    let import_report = serde_json::to_string_pretty(&odocal::settings::import_report_json(&report)?)
         .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
-    let wheel_scale = Some(imported.report.wheel_scale.clone());
+    let wheel_scale = Some(report.wheel_scale.clone());
     let source = Some(path.display().to_string());
-    Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source }))
+    Ok((drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source }))
 }
 
 #[pymethods]

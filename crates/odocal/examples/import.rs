@@ -17,13 +17,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let manifest = args.get(1).ok_or("usage: import MANIFEST [OUT.csv]")?;
     // Paths in a manifest are relative to the manifest (docs/reference.md, "The drive manifest").
     let m = Manifest::from_path(Path::new(manifest))?;
-    let imported = import(&m)?;
+    let (drive, report) = import(&m)?;
     // Streams, clock offset, gaps and the continuous parts kept.
-    println!("{}", imported.report);
+    println!("{report}");
     let o = SegmentOptions::default();
-    let all = cut(&imported.drive, o.offset_steps, o.length_steps, o.stride_steps);
-    let selected = calibration_segments(&imported.drive, &o)?;
-    let val = validation_segments(&imported.drive, &Default::default())?;
+    let all = cut(&drive, o.offset_steps, o.length_steps, o.stride_steps);
+    let selected = calibration_segments(&drive, &o)?;
+    let val = validation_segments(&drive, &Default::default())?;
     println!(
         "segments (SPEC defaults): {} cut, {} selected (peak yaw rate ≥ 0.15 rad/s); {} validation segments",
         all.len(),
@@ -31,7 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         val.len()
     );
     if let Some(out) = args.get(2) {
-        imported.drive.write_csv(out)?;
+        drive.write_csv(out)?;
         println!("wrote {out}");
     }
     Ok(())

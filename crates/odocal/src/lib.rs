@@ -175,7 +175,7 @@ pub use drive::{
 };
 pub use io::import::{
     import, is_manifest_path, load_drive, manifest::Manifest, report::ImportReport, settings::ReferenceSpec,
-    wheel_scale_mismatch, ImportedDrive,
+    wheel_scale_mismatch,
 };
 pub use io::param_file::{ParamFile, ParamMapping};
 // Calibration: the entry points, the options, the report. `settings` is an

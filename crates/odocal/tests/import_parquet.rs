@@ -91,7 +91,7 @@ convention = "enu"
     fn van_parquet_imports_to_the_csv_drive_bit_for_bit() {
         let csv = import(&manifest("psu-mapping-van/manifest.toml")).expect("csv import");
         let pq = import(&manifest("parquet/manifest.toml")).expect("parquet import");
-        let (a, b) = (&csv.drive, &pq.drive);
+        let (a, b) = (&csv.0, &pq.0);
         assert!(a.len() > 4000, "the slice is ~2 min at 40 Hz, got {}", a.len());
         assert_eq!(a.parts(), b.parts());
         assert_eq!(bits(a.t()), bits(b.t()), "t");
@@ -110,8 +110,8 @@ convention = "enu"
             }
             v
         };
-        assert_eq!(strip(&csv.report), strip(&pq.report));
-        assert_eq!(serde_json::to_value(&pq.report).expect("JSON")["streams"][0]["rows"], 13_000);
+        assert_eq!(strip(&csv.1), strip(&pq.1));
+        assert_eq!(serde_json::to_value(&pq.1).expect("JSON")["streams"][0]["rows"], 13_000);
     }
 
     #[test]

@@ -13,7 +13,7 @@
 use std::path::Path;
 
 use odocal::Drive;
-use odocal::{import, ImportedDrive, Manifest};
+use odocal::{import, Manifest};
 use odocal_lab::{
     print_cross_runs, print_joint_fits, repo_path, testtrack_manifest, with_signals, Args, Res, TESTTRACK_RUNS,
 };
@@ -111,7 +111,7 @@ fn run() -> Res<()> {
             a_y.remove("bank");
         }
         let m = Manifest::parse(&toml.to_string(), &path)?;
-        let ImportedDrive { drive: d, report: rep } = import(&m)?;
+        let (d, rep) = import(&m)?;
         let (ts, ph) = roll_series(&data.join(format!("run-{run}")))?;
         // gps time → drive time
         let shift = -0.006 + rep.clock_offset.applied_s - rep.time_origin_s;

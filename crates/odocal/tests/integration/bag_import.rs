@@ -36,13 +36,13 @@ fn load(rel: &str) -> Manifest {
 fn full_bag_imports_as_the_ros_time_csv_manifest() {
     let from_bag = import(&load("examples/psu-mapping-van/manifest-mcap.toml")).expect("bag import");
     let from_csv = import(&load("examples/psu-mapping-van/manifest-ros-time.toml")).expect("CSV import");
-    let (a, b) = (&from_bag.drive, &from_csv.drive);
+    let (a, b) = (&from_bag.0, &from_csv.0);
     assert_eq!(a.parts(), b.parts(), "parts");
     assert_eq!(a.len(), b.len());
     assert!(a.parts().len() >= 5, "the van drive has several parts, found {}", a.parts().len());
     assert_eq!(
-        from_bag.report.clock_offset.applied_s.to_bits(),
-        from_csv.report.clock_offset.applied_s.to_bits(),
+        from_bag.1.clock_offset.applied_s.to_bits(),
+        from_csv.1.clock_offset.applied_s.to_bits(),
         "clock offset"
     );
     let max_diff = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
@@ -56,11 +56,7 @@ fn full_bag_imports_as_the_ros_time_csv_manifest() {
     // Quality: the bag's covariance threshold rejects exactly the rows the
     // CSV's both_fix6 = 0 rejects.
     let gaps = |r: &odocal::ImportReport| serde_json::to_value(r).expect("JSON")["gaps"].clone();
-    assert_eq!(
-        gaps(&from_bag.report).as_array().map(Vec::len),
-        gaps(&from_csv.report).as_array().map(Vec::len),
-        "gaps"
-    );
+    assert_eq!(gaps(&from_bag.1).as_array().map(Vec::len), gaps(&from_csv.1).as_array().map(Vec::len), "gaps");
 }
 
 /// The shipped 120 s slice bag imports: both wheels, the pose, its quality
@@ -104,11 +100,11 @@ quality = { column = "cov_x", max = 0.01 }
         import(&m).expect("slice import")
     };
     let header = run("header");
-    let d = &header.drive;
+    let d = &header.0;
     // 120 s of bag; the first pose samples are not RTK fixed (cov_x = 100).
     let span = d.t().last().copied().unwrap_or(0.0) - d.t()[0];
     assert!(span > 60.0 && span < 120.0, "span {span} s");
-    let report = serde_json::to_value(&header.report).expect("the import report as JSON");
+    let report = serde_json::to_value(&header.1).expect("the import report as JSON");
     let gaps = report["gaps"].as_array().expect("gaps");
     assert!(!gaps.is_empty(), "the slice starts with rejected pose quality");
     let why = gaps[0]["reasons"].to_string();
@@ -116,8 +112,8 @@ quality = { column = "cov_x", max = 0.01 }
     let moving = d.measured().n_rl.iter().filter(|n| **n > 1.0).count();
     assert!(moving > d.len() / 2, "the van drives through most of the slice ({moving} of {} samples)", d.len());
     let log = run("log");
-    assert_eq!(log.drive.parts(), d.parts());
-    assert_eq!(log.drive.measured().px, d.measured().px);
+    assert_eq!(log.0.parts(), d.parts());
+    assert_eq!(log.0.measured().px, d.measured().px);
 }
 
 /// A two-stream manifest with the stream keys `wheels_keys` and the pose

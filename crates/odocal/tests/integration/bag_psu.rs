@@ -228,8 +228,8 @@ fn slice_draft_manifest_imports() {
     let path = dir.path().join("draft.toml");
     std::fs::write(&path, &text).expect("write");
     let m = odocal::Manifest::from_path(&path).expect("the draft parses");
-    let imported = odocal::import(&m).expect("the draft imports");
+    let (drive, _) = odocal::import(&m).expect("the draft imports");
     // 120 s of a van at highway speed, every sample of one continuous part.
-    assert!(imported.drive.distance_m() > 2000.0, "{} m", imported.drive.distance_m());
-    assert!(imported.drive.len() > 40 * 100, "{} samples", imported.drive.len());
+    assert!(drive.distance_m() > 2000.0, "{} m", drive.distance_m());
+    assert!(drive.len() > 40 * 100, "{} samples", drive.len());
 }

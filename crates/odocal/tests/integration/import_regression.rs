@@ -23,7 +23,7 @@ fn fnv(values: impl IntoIterator<Item = f64>) -> u64 {
 
 /// `(column, hash)` of every numeric column, the parts and the length.
 fn fingerprint(name: &str) -> Vec<(String, u64)> {
-    let d = import(&manifest(name)).expect("import").drive;
+    let d = import(&manifest(name)).expect("import").0;
     let mut out: Vec<(String, u64)> =
         d.measured().columns().iter().map(|(c, v)| (c.to_string(), fnv(v.iter().copied()))).collect();
     out.push(("t".into(), fnv(d.t().iter().copied())));

@@ -22,9 +22,9 @@ fn options() -> CalibrationOptions {
 
 #[test]
 fn van_slice_imports_and_calibrates_c_e_near_the_tick_scale() {
-    let imported = import(&manifest("psu-mapping-van")).expect("import");
-    assert!(imported.report.wheel_scale.contains("40360 ticks"), "{}", imported.report.wheel_scale);
-    let r = calibrate(&imported.drive, &options()).expect("calibrate");
+    let (drive, report) = import(&manifest("psu-mapping-van")).expect("import");
+    assert!(report.wheel_scale.contains("40360 ticks"), "{}", report.wheel_scale);
+    let r = calibrate(&drive, &options()).expect("calibrate");
     // ~20,180 ticks per metre (data README): 40,360 ticks ≈ 2.0 m; the full
     // drive's halves give 1.9945–1.9963 m.
     assert!((1.99..2.005).contains(&r.theta.c_e), "c_e = {}", r.theta.c_e);
@@ -36,8 +36,8 @@ fn van_slice_imports_and_calibrates_c_e_near_the_tick_scale() {
 
 #[test]
 fn van_slice_auto_fix_holds_what_the_check_names() {
-    let imported = import(&manifest("psu-mapping-van")).expect("import");
-    let r = calibrate(&imported.drive, &CalibrationOptions { auto_fix: true, ..options() }).expect("calibrate");
+    let (drive, _) = import(&manifest("psu-mapping-van")).expect("import");
+    let r = calibrate(&drive, &CalibrationOptions { auto_fix: true, ..options() }).expect("calibrate");
     assert!(!r.auto_fixed.is_empty());
     assert!(r.observability.unobservable.is_empty(), "{:?}", r.observability);
     for p in &r.auto_fixed {
@@ -47,11 +47,11 @@ fn van_slice_auto_fix_holds_what_the_check_names() {
 
 #[test]
 fn rav4_slice_without_turns_is_an_error_naming_the_parameters() {
-    let imported = import(&manifest("comma2k19-rav4")).expect("import");
+    let (drive, _) = import(&manifest("comma2k19-rav4")).expect("import");
     let opts = CalibrationOptions { segments: SegmentOptions { length_steps: 400, ..Default::default() }, ..options() };
-    let e = calibrate(&imported.drive, &opts).expect_err("not observable");
+    let e = calibrate(&drive, &opts).expect_err("not observable");
     assert!(e.to_string().contains("c_d, t_r, d not observable"), "{e}");
-    let r = calibrate(&imported.drive, &CalibrationOptions { auto_fix: true, ..opts.clone() }).expect("c_e alone");
+    let r = calibrate(&drive, &CalibrationOptions { auto_fix: true, ..opts.clone() }).expect("c_e alone");
     assert_eq!(r.auto_fixed, vec![Param::CD, Param::TR, Param::D]);
     assert!((2.0 * 1.005..2.0 * 1.015).contains(&r.theta.c_e), "c_e = {}", r.theta.c_e);
 }

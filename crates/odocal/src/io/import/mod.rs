@@ -221,9 +221,9 @@
 //! # fn main() -> odocal::Result<()> {
 //! use std::path::Path;
 //! let manifest = odocal::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
-//! let imported = odocal::import(&manifest)?;
-//! println!("{}", imported.report);
-//! imported.drive.write_csv("drive.csv")?;
+//! let (drive, report) = odocal::import(&manifest)?;
+//! println!("{report}");
+//! drive.write_csv("drive.csv")?;
 //! # Ok(()) }
 //! ```
 
@@ -267,7 +267,7 @@ use wheels::Wheels;
 
 /// A drive imported from a manifest, with the report of what was done.
 #[derive(Debug, Clone)]
-pub struct ImportedDrive {
+pub(crate) struct ImportedDrive {
     /// The uniform drive (time starts at 0 at [`ImportReport::time_origin_s`]).
     pub drive: Drive,
     /// What was read, estimated, split and dropped.
@@ -295,7 +295,7 @@ pub fn is_manifest_path(path: &Path) -> bool {
 pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
     if is_manifest_path(path) {
         let m = Manifest::from_path(path)?;
-        let ImportedDrive { drive, report } = import(&m)?;
+        let ImportedDrive { drive, report } = import_drive(&m)?;
         Ok((drive, Some(report)))
     } else {
         Ok((Drive::read_csv(path)?.0, None))
@@ -336,19 +336,27 @@ pub fn wheel_scale_mismatch(first: &mut Option<(String, String)>, name: &str, sc
 }
 
 /// Imports a drive described by a manifest: reads the streams, estimates the
-/// clock offset, resamples to the output rate and splits at gaps.
+/// clock offset, resamples to the output rate and splits at gaps. Returns
+/// the uniform drive (time 0 at [`ImportReport::time_origin_s`]) and the
+/// report of what was read, estimated, split and dropped, as
+/// [`load_drive`] does.
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{import, Manifest};
 /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
 /// let manifest = Manifest::from_path(path.as_ref())?;
-/// let imported = import(&manifest)?;
-/// println!("{}", imported.report); // what was read, estimated, split and dropped
-/// assert!(imported.drive.len() > 0);
+/// let (drive, report) = import(&manifest)?;
+/// println!("{report}"); // what was read, estimated, split and dropped
+/// assert!(drive.len() > 0);
 /// # Ok(()) }
 /// ```
-pub fn import(m: &Manifest) -> Result<ImportedDrive> {
+pub fn import(m: &Manifest) -> Result<(Drive, ImportReport)> {
+    import_drive(m).map(|i| (i.drive, i.report))
+}
+
+/// [`import`]'s drive and report as one value.
+pub(crate) fn import_drive(m: &Manifest) -> Result<ImportedDrive> {
     let started = Instant::now();
     let o = &m.output;
     let h = 1.0 / o.rate_hz;

@@ -240,7 +240,7 @@ fn fixed_offset_and_raw_stamps_are_used_as_given() {
     let text = std::fs::read_to_string(&path).expect("read");
     let text = text.replace("min_part_s = 10.0", "min_part_s = 10.0\nclock_offset = 0.5");
     let m = Manifest::parse(&text, &path).expect("manifest");
-    let r = import(&m).expect("import").report;
+    let r = import_drive(&m).expect("import").report;
     assert!((r.clock_offset.applied_s - 0.5).abs() < 1e-12);
     assert_eq!(r.clock_offset.mode, "fixed");
     // Still estimated and reported.
@@ -716,8 +716,8 @@ fn van_raw_counters_match_cumulative_columns() {
         .replace("signal = \"ticks_cumulative\"", "signal = \"ticks_raw\"\ncounter_bits = 32")
         .replace("{ column = \"left_ticks_cum\" }", "{ column = \"c1_raw\", sign = -1 }")
         .replace("{ column = \"right_ticks_cum\" }", "{ column = \"c2_raw\" }");
-    let a = import(&Manifest::parse(&text, &path).expect("m")).expect("cum").drive;
-    let b = import(&Manifest::parse(&raw, &path).expect("m")).expect("raw").drive;
+    let a = import_drive(&Manifest::parse(&text, &path).expect("m")).expect("cum").drive;
+    let b = import_drive(&Manifest::parse(&raw, &path).expect("m")).expect("raw").drive;
     assert_eq!(a.len(), b.len());
     let worst = a
         .n_rl()
@@ -773,7 +773,7 @@ fn stream_format_is_tagged_with_csv_by_default() {
     let m = Manifest::parse(&mcap, &path).expect("mcap manifest");
     let time = crate::io::import::manifest::BagTime::Header;
     assert_eq!(m.streams["wheels"].source, SourceSpec::Mcap { file: "w.mcap".into(), topic: "/wheels".into(), time });
-    let e = import(&m).map(|_| ()).expect_err("no such bag").to_string();
+    let e = import_drive(&m).map(|_| ()).expect_err("no such bag").to_string();
     #[cfg(feature = "mcap")]
     assert!(e.contains("streams.wheels.file: ") && e.contains("w.mcap"), "{e}");
     #[cfg(not(feature = "mcap"))]
@@ -786,7 +786,7 @@ fn reference_measured_marks_the_sample_nearest_each_pose_sample() {
     let tr = Truth::new(duration);
     let dir = tempfile::tempdir().expect("tempdir");
     let path = write_synthetic(dir.path(), &tr, duration);
-    let ImportedDrive { drive, report } = import(&Manifest::from_path(&path).expect("m")).expect("import");
+    let ImportedDrive { drive, report } = import_drive(&Manifest::from_path(&path).expect("m")).expect("import");
     let mask = drive.reference_measured().expect("an imported drive has the mask");
     let h = drive.sample_time_s();
     // Pose times on the drive's clock: 10 Hz on the pose clock, shifted.
@@ -813,7 +813,7 @@ fn small_case_error(edit: impl Fn(String) -> String, edit_w: impl Fn(String) -> 
     let w = edit_w(std::fs::read_to_string(dir.path().join("w.csv")).expect("read"));
     std::fs::write(dir.path().join("w.csv"), w).expect("write");
     limits::LARGEST_GRID.with(|c| c.set(0));
-    let e = Manifest::parse(&text, &path).and_then(|m| import(&m)).map(|_| ()).expect_err("an error").to_string();
+    let e = Manifest::parse(&text, &path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("an error").to_string();
     (e, limits::LARGEST_GRID.with(|c| c.get()))
 }
 
@@ -912,7 +912,7 @@ fn wheel_speed_beyond_the_limit_names_the_wheel_and_time() {
     let w = fast(std::fs::read_to_string(dir.path().join("w.csv")).expect("read"));
     std::fs::write(dir.path().join("w.csv"), w).expect("write");
     let text = std::fs::read_to_string(&path).expect("read") + "\n[limits]\nmax_speed_m_per_s = 150.0\n";
-    let r = import(&Manifest::parse(&text, &path).expect("m")).expect("raised limit").report;
+    let r = import_drive(&Manifest::parse(&text, &path).expect("m")).expect("raised limit").report;
     assert!(r.warnings.iter().any(|w| w.contains("wheels.rear_left: the wheel's speed at θ_0 is 12")), "{r}");
     // Cumulative ticks declared as rev/s.
     let (e, _) = small_case_error(
@@ -939,7 +939,7 @@ fn pose_columns_holding_ecef_or_metres_are_named() {
         "position = { kind = \"lat_lon\", lat = \"x\", lon = \"y\" }",
     );
     // Metres in the lat column (0 … 39, all within ±90): 111 km per step.
-    let e = Manifest::parse(&latlon, &path).and_then(|m| import(&m)).map(|_| ()).expect_err("metres").to_string();
+    let e = Manifest::parse(&latlon, &path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("metres").to_string();
     assert!(e.contains("pose.position.lat") && e.contains("max_speed_m_per_s"), "{e}");
     // ECEF metres: outside ±90.
     let p = std::fs::read_to_string(dir.path().join("p.csv")).expect("read");
@@ -950,7 +950,7 @@ fn pose_columns_holding_ecef_or_metres_are_named() {
         .collect::<Vec<_>>()
         .join("\n");
     std::fs::write(dir.path().join("p.csv"), ecef).expect("write");
-    let e = Manifest::parse(&latlon, &path).and_then(|m| import(&m)).map(|_| ()).expect_err("ecef").to_string();
+    let e = Manifest::parse(&latlon, &path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("ecef").to_string();
     assert!(e.contains("pose.position.lat") && e.contains("4510000") && e.contains("outside ±90"), "{e}");
 }
 
@@ -962,7 +962,7 @@ fn synthetic_error(edit: impl Fn(String) -> String) -> String {
     let path = write_synthetic(dir.path(), &tr, duration);
     let text = edit(std::fs::read_to_string(&path).expect("read"));
     let m = Manifest::parse(&text, &path).expect("manifest");
-    import(&m).map(|_| ()).expect_err("an error").to_string()
+    import_drive(&m).map(|_| ()).expect_err("an error").to_string()
 }
 
 #[test]
@@ -984,7 +984,7 @@ fn a_counter_narrower_than_declared_is_detected() {
         .replace("signal = \"ticks_cumulative\"", "signal = \"ticks_raw\"\ncounter_bits = 8")
         .replace("{ column = \"left_ticks_cum\" }", "{ column = \"c1_raw\", sign = -1 }")
         .replace("{ column = \"right_ticks_cum\" }", "{ column = \"c2_raw\" }");
-    let e = import(&Manifest::parse(&text, &path).expect("m")).map(|_| ()).expect_err("8 bits").to_string();
+    let e = import_drive(&Manifest::parse(&text, &path).expect("m")).map(|_| ()).expect_err("8 bits").to_string();
     assert!(e.contains("wheels.counter_bits") && e.contains("8-bit"), "{e}");
     assert!(!e.contains("NaN"), "{e}");
 }
@@ -1046,7 +1046,7 @@ fn auto_offset_keeps_the_manifest_offset_and_warns_when_in_doubt() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = small_case(dir.path());
     let text = std::fs::read_to_string(&path).expect("read").replace("clock_offset = 0.0", "clock_offset = \"auto\"");
-    let r = import(&Manifest::parse(&text, &path).expect("m")).expect("import").report;
+    let r = import_drive(&Manifest::parse(&text, &path).expect("m")).expect("import").report;
     assert!(r.clock_offset.applied_s.abs() < 1e-15, "{r}");
     assert!(r.clock_offset.doubt.is_some(), "{r}");
     assert!(r.warnings.iter().any(|w| w.contains("kept the streams' time_offset_s")), "{r}");
@@ -1058,7 +1058,7 @@ fn a_known_offset_is_applied_with_its_confidence() {
     let tr = Truth::new(duration);
     let dir = tempfile::tempdir().expect("tempdir");
     let path = write_synthetic(dir.path(), &tr, duration);
-    let c = import(&Manifest::from_path(&path).expect("m")).expect("import").report.clock_offset;
+    let c = import_drive(&Manifest::from_path(&path).expect("m")).expect("import").report.clock_offset;
     assert!(c.doubt.is_none(), "{c:?}");
     assert!((c.applied_s - TRUE_CLOCK_OFFSET_S).abs() < 0.025, "{c:?}");
     let k = c.peak_curvature_per_s2.expect("curvature");
@@ -1177,13 +1177,13 @@ fn bank_errors_name_the_key() {
     let d = dir.path();
     let err = |phi: f64, extra: &str| -> String {
         let path = bank_case(d, |_| phi, 0.0, |_| false, extra);
-        Manifest::from_path(&path).and_then(|m| import(&m)).map(|_| ()).expect_err("an error").to_string()
+        Manifest::from_path(&path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("an error").to_string()
     };
     let edit = |from: &str, to: &str| -> String {
         let path = bank_case(d, |_| 0.0, 0.0, |_| false, "");
         let text = std::fs::read_to_string(&path).expect("read").replace(from, to);
         std::fs::write(&path, text).expect("write");
-        Manifest::from_path(&path).and_then(|m| import(&m)).map(|_| ()).expect_err("an error").to_string()
+        Manifest::from_path(&path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("an error").to_string()
     };
     let e = edit("baseline_m = 1.5", "baseline_m = 0.0");
     assert!(e.contains("lateral_acceleration.bank.baseline_m: must be a positive number, found 0"), "{e}");

@@ -147,7 +147,7 @@ pub fn params(data: &[u8]) -> Outcome {
 /// Imports a manifest already parsed (used by the fuzz target on bundles).
 pub fn import_manifest(m: &Manifest) -> Outcome {
     match import(m) {
-        Ok(imp) => check_drive(&imp.drive),
+        Ok((drive, _)) => check_drive(&drive),
         Err(e) => check_message(e.to_string()),
     }
 }

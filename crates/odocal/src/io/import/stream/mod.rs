@@ -153,7 +153,7 @@ pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
 /// while let Some(chunk) = raw.take_chunk(400) {
 ///     samples += chunk.t.len();
 /// }
-/// assert_eq!(samples, odocal::import(&manifest)?.drive.len());
+/// assert_eq!(samples, odocal::import(&manifest)?.0.len());
 /// # Ok(()) }
 /// ```
 #[derive(Debug)]

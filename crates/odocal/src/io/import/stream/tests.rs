@@ -62,7 +62,7 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
         ("../../examples/psu-mapping-van-testtrack/run-18-01-26.toml", 400),
     ] {
         let m = manifest(rel);
-        let whole = crate::io::import::import(&m).expect("import");
+        let whole = crate::io::import::import_drive(&m).expect("import");
         let (d, r) = streamed(&m, StreamOptions::default(), chunk);
         assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}, chunk {chunk}");
         assert_eq!(d.reference_measured(), whole.drive.reference_measured());
@@ -123,7 +123,7 @@ fn a_heading_derived_from_the_track_is_streamed_bit_for_bit() {
             Err(e) => panic!("{rel}: {e}"),
         };
         assert!(m.pose.heading.is_none() && not_streamable(&m).is_none(), "{rel}");
-        let whole = crate::io::import::import(&m).expect("import");
+        let whole = crate::io::import::import_drive(&m).expect("import");
         let (d, r) = streamed(&m, StreamOptions::default(), 400);
         assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
         assert_eq!(d.reference_measured(), whole.drive.reference_measured(), "{rel}");
@@ -176,7 +176,7 @@ fn a_y_from_the_pose_is_streamed_bit_for_bit() {
         };
         assert!(matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }), "{rel}");
         assert_eq!(m.lateral_acceleration.bank().is_some(), bank, "{rel}");
-        let whole = crate::io::import::import(&m).expect("import");
+        let whole = crate::io::import::import_drive(&m).expect("import");
         let (d, r) = streamed(&m, StreamOptions::default(), 400);
         assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
         assert_eq!(r.lateral_acceleration, whole.report.lateral_acceleration, "{rel}");
@@ -217,7 +217,7 @@ fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() 
     for (rel, warm_up_s) in cases {
         let (m, whole, (a, sa)) = &*whole_of.entry(rel).or_insert_with(|| {
             let m = manifest(rel);
-            let whole = crate::io::import::import(&m).expect("import");
+            let whole = crate::io::import::import_drive(&m).expect("import");
             let fitted = fit(&whole.drive);
             (m, whole, fitted)
         });
@@ -269,14 +269,14 @@ fn with_the_clock_offset_given_a_long_banked_drive_is_the_whole_import_bit_for_b
         ["../../examples/psu-mapping-van/manifest.toml", "../../examples/psu-mapping-van-testtrack/run-16-06-28.toml"]
     {
         let auto = manifest(rel);
-        let tau = crate::io::import::import(&auto).expect("import").report.clock_offset.applied_s;
+        let tau = crate::io::import::import_drive(&auto).expect("import").report.clock_offset.applied_s;
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
         let text = std::fs::read_to_string(&p).expect("read");
         assert!(text.contains("clock_offset = \"auto\""), "{rel}");
         let m = Manifest::parse(&text.replace("clock_offset = \"auto\"", &format!("clock_offset = {tau:?}")), &p)
             .expect("manifest");
         assert!(m.lateral_acceleration.bank().is_some());
-        let whole = crate::io::import::import(&m).expect("import");
+        let whole = crate::io::import::import_drive(&m).expect("import");
         let (d, r) = streamed(&m, StreamOptions { warm_up_s: 30.0 }, 400);
         assert!(whole.drive.len() as f64 * 0.025 > 120.0, "{rel}: longer than the warm-up");
         assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
@@ -419,7 +419,7 @@ fn a_long_standstill_before_the_first_motion_is_held_for_at_most_the_warm_up() {
         let syn = Synthetic::new(still_s, 120.0);
         syn.write(dir.path());
         let m = Synthetic::manifest(dir.path());
-        let whole = crate::io::import::import(&m).expect("import");
+        let whole = crate::io::import::import_drive(&m).expect("import");
         let mut s = RawStream::new(&m, opts.clone()).expect("stream");
         let (most, r, taken) = syn.push(&mut s, f64::INFINITY);
         r.expect("streamed");
@@ -509,7 +509,7 @@ fn a_stream_with_a_wrong_convention_is_refused_as_the_whole_import_refuses_it() 
             Ok(m) => m,
             Err(e) => panic!("{rel}: {e}"),
         };
-        let whole = match crate::io::import::import(&m) {
+        let whole = match crate::io::import::import_drive(&m) {
             Ok(i) => panic!("{rel}, {key}: the whole import takes it: {:?}", i.report.warnings),
             Err(e) => e.to_string(),
         };
@@ -540,7 +540,7 @@ fn repeated_stamps_are_warned_about_as_the_whole_import_warns() {
     for (text, count) in [(clean.replacen("\n2,5,5\n", "\n2,5,5\n2,15,15\n", 1), 1), (doubled, 1)] {
         std::fs::write(&w, text).expect("write");
         let m = Manifest::from_path(&path).expect("manifest");
-        let whole = crate::io::import::import(&m).expect("import");
+        let whole = crate::io::import::import_drive(&m).expect("import");
         let (_, r) = streamed(&m, StreamOptions::default(), 64);
         let found = repeats(&r);
         assert_eq!(found.len(), count, "{found:?}");
