@@ -357,7 +357,7 @@ impl CalibrationReport {
         }
         let theta = fits.iter().map(|r| r.theta).collect();
         let sigma = fits.iter().map(|r| r.within_drive_sigma().to_array()).collect();
-        next.with_pooled(crate::pooling::PooledDrives::new("batch-gn".into(), theta, sigma));
+        next.with_pooled(crate::assess::pooling::PooledDrives::new("batch-gn".into(), theta, sigma));
         let reasons = std::mem::take(&mut self.verdict.reasons);
         let free = self.options.identify.free;
         // The pooled σ's between-drive part is the drives' measured spread:
@@ -510,8 +510,8 @@ pub(crate) fn next_drive_of(
 /// After a fallback from EIV's fit `e` whose θ fails the guards (with no
 /// passing, plausible fit with held noise levels released): the wheel
 /// noise sources at their upper clamp and the levels held
-/// (`crate::pooling::FallbackUnchecked`).
-fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> crate::pooling::FallbackUnchecked {
+/// (`crate::assess::pooling::FallbackUnchecked`).
+fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> crate::assess::pooling::FallbackUnchecked {
     use crate::eiv::{EivWarning, NoiseSource};
     let clamped = e
         .warnings
@@ -532,7 +532,7 @@ fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> c
         crate::Method::Eiv(m) => m.filter.known_sources(),
         _ => Vec::new(),
     };
-    crate::pooling::FallbackUnchecked { clamped, held }
+    crate::assess::pooling::FallbackUnchecked { clamped, held }
 }
 
 /// When the result is EIV's own estimate (not a refit) with t_r estimated
@@ -613,7 +613,7 @@ pub enum SigmaCovers {
 impl std::fmt::Display for SigmaCovers {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
-            SigmaCovers::NextDrive => crate::pooling::NEXT_DRIVE_SIGMA_LABEL,
+            SigmaCovers::NextDrive => crate::assess::pooling::NEXT_DRIVE_SIGMA_LABEL,
             SigmaCovers::WithinDrive => "within-drive σ",
         })
     }

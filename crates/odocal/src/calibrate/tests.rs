@@ -572,7 +572,7 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
         assert!(sigma > 10.0 * model, "{}: file σ {sigma} vs model σ {model}", e.name);
     }
     assert!(f.provenance.contains(&("sigma".into(), "batch-spread".into())), "{:?}", f.provenance);
-    let covers = crate::pooling::NEXT_DRIVE_SIGMA_LABEL.to_string();
+    let covers = crate::assess::pooling::NEXT_DRIVE_SIGMA_LABEL.to_string();
     assert!(f.provenance.contains(&("sigma_covers".into(), covers)), "{:?}", f.provenance);
     assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
 
