@@ -168,7 +168,7 @@ fn same_wheel_scale(first: &mut Option<(String, String)>, source: &str, drive: &
 /// use odocal::sim;
 /// let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
 /// let csv = dir.path().join("a.csv");
-/// sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(1) })?.drive.write_csv(&csv)?;
+/// sim::simulate(&sim::SimOptions { length_km: 2.0, noise: "off".parse()?, ..sim::SimOptions::paper(1) })?.drive.write_csv(&csv)?;
 /// let mut db = History::open(dir.path().join("van.sqlite"))?;
 /// let mut decisions = Vec::new();
 /// follow(&mut db, "van-1", &[csv], &FollowOptions::default(), |e| {

@@ -182,7 +182,11 @@ mod tests {
     fn follow_skips_the_same_files_over_the_same_time_imported_another_way() {
         let dir = tempfile::tempdir().expect("tempdir");
         let csv = dir.path().join("a.csv");
-        let sim = odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(3) };
+        let sim = odocal::sim::SimOptions {
+            length_km: 1.0,
+            noise: "off".parse().expect("the off preset"),
+            ..odocal::sim::SimOptions::paper(3)
+        };
         odocal::sim::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
         let digest = source_digest(&csv).expect("digest");
         let other = "f".repeat(64);

@@ -425,11 +425,15 @@ fn a_rejected_row_is_listed_but_neither_flagged_nor_pooled() {
     assert!(db.vehicle("van", Some(&[ids[1], ids[3]])).expect("history").pooled.is_none());
     // `follow` starts from the most recent row that is not rejected.
     let csv = dir.path().join("d.csv");
-    odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(3) })
-        .expect("sim")
-        .drive
-        .write_csv(&csv)
-        .expect("csv");
+    odocal::sim::simulate(&odocal::sim::SimOptions {
+        length_km: 1.0,
+        noise: "off".parse().expect("the off preset"),
+        ..odocal::sim::SimOptions::paper(3)
+    })
+    .expect("sim")
+    .drive
+    .write_csv(&csv)
+    .expect("csv");
     let mut start = None;
     follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
         if let FollowEvent::Start { theta, origin } = e {
@@ -468,10 +472,13 @@ fn a_joint_calibration_stands_for_each_of_its_drives() {
 fn follow_skips_a_drive_the_history_holds_a_calibration_of() {
     let dir = tempfile::tempdir().expect("tempdir");
     let csv = dir.path().join("a.csv");
-    let drive =
-        odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(2) })
-            .expect("sim")
-            .drive;
+    let drive = odocal::sim::simulate(&odocal::sim::SimOptions {
+        length_km: 1.0,
+        noise: "off".parse().expect("the off preset"),
+        ..odocal::sim::SimOptions::paper(2)
+    })
+    .expect("sim")
+    .drive;
     drive.write_csv(&csv).expect("csv");
     let fingerprint = odocal::Drive::read_csv(&csv).expect("read").0.fingerprint();
     let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
@@ -725,7 +732,8 @@ fn concurrent_follows_decide_each_drive_once() {
             let csv = dir.path().join(format!("d{seed}.csv"));
             odocal::sim::simulate(&odocal::sim::SimOptions {
                 length_km: 1.5,
-                ..odocal::sim::SimOptions::noise_free(seed)
+                noise: "off".parse().expect("the off preset"),
+                ..odocal::sim::SimOptions::paper(seed)
             })
             .expect("sim")
             .drive
@@ -1017,11 +1025,15 @@ fn follow_does_not_start_from_a_biased_row() {
         panic!("not new");
     };
     let csv = dir.path().join("d.csv");
-    odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(3) })
-        .expect("sim")
-        .drive
-        .write_csv(&csv)
-        .expect("csv");
+    odocal::sim::simulate(&odocal::sim::SimOptions {
+        length_km: 1.0,
+        noise: "off".parse().expect("the off preset"),
+        ..odocal::sim::SimOptions::paper(3)
+    })
+    .expect("sim")
+    .drive
+    .write_csv(&csv)
+    .expect("csv");
     let mut start = None;
     follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
         if let FollowEvent::Start { theta, origin } = e {

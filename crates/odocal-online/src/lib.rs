@@ -323,7 +323,7 @@ struct Pending {
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal_online::{Calibrator, OnlineOptions};
 /// use odocal::{sim, Theta};
-/// let out = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::noise_free(2) })?;
+/// let out = sim::simulate(&sim::SimOptions { length_km: 3.0, noise: "off".parse()?, ..sim::SimOptions::paper(2) })?;
 /// let d = &out.drive;
 /// let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, d.sample_time_s(), OnlineOptions::default())?;
 /// // The drive in chunks of 400 samples, as they would arrive.

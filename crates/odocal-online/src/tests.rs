@@ -5,7 +5,12 @@ use odocal::sim::{simulate, SimOptions};
 use odocal::DriveBuilder;
 
 fn noise_free(km: f64, seed: u64) -> (Drive, Theta) {
-    let out = simulate(&SimOptions { length_km: km, ..SimOptions::noise_free(seed) }).expect("simulate");
+    let out = simulate(&SimOptions {
+        length_km: km,
+        noise: "off".parse().expect("the off preset"),
+        ..SimOptions::paper(seed)
+    })
+    .expect("simulate");
     (out.drive, out.sidecar.theta_true)
 }
 

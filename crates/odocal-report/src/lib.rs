@@ -654,7 +654,12 @@ mod tests {
 
     #[test]
     fn no_segments_is_an_error() {
-        let out = sim::simulate(&sim::SimOptions { length_km: 1.0, ..sim::SimOptions::noise_free(1) }).expect("sim");
+        let out = sim::simulate(&sim::SimOptions {
+            length_km: 1.0,
+            noise: "off".parse().expect("the off preset"),
+            ..sim::SimOptions::paper(1)
+        })
+        .expect("sim");
         let input = ReportInput::new("x", &out.drive, &[], Theta::PAPER_INITIAL, Theta::PAPER_INITIAL);
         assert!(matches!(render_html(&input), Err(ReportError::Input(_))));
     }

@@ -9,7 +9,7 @@
 //! [`run`] computes every number; the `odocal experiment` command renders
 //! them as `report.md`, SVG figures and `experiment.json`.
 //!
-//! When the truth and the noise model are known (a simulated drive,
+//! When the truth and the noise are known (a simulated drive,
 //! [`ExperimentOptions::noise`]), every θ's error is also read against the
 //! Cramér–Rao bound (`crate::eiv::cramer_rao_bound` at θ_true with the
 //! true noise model): [`Experiment::cramer_rao`] holds σ_CRB and each
@@ -34,6 +34,7 @@ use crate::error::{Error, Result};
 use crate::identify::IdentifyOptions;
 use crate::model::{step, Theta};
 use crate::progress::{emit, Progress, ProgressFn};
+use crate::sim::NoiseOptions;
 
 /// Settings of an experiment.
 #[derive(Debug, Clone, PartialEq)]
@@ -43,11 +44,12 @@ pub struct ExperimentOptions {
     /// The reachable-minimum search (the estimates are added to its starts).
     /// Default the box around the paper's θ_0, seed 0.
     pub reachable: ReachableOptions,
-    /// The drive's true noise model (a simulated drive:
-    /// [`NoiseModel::from_sim`]). With θ_true it gives the Cramér–Rao
-    /// bound column ([`Experiment::cramer_rao`]); `None` (a real drive)
-    /// leaves the column out, saying why. Default `None`.
-    pub noise: Option<NoiseModel>,
+    /// The simulator's noise settings of the drive (a simulated drive's
+    /// sidecar, `settings.noise`): its true noise model, in the EIV
+    /// filter's form at the drive's sample time. With θ_true it gives the
+    /// Cramér–Rao bound column ([`Experiment::cramer_rao`]); `None` (a real
+    /// drive) leaves the column out, saying why. Default `None`.
+    pub noise: Option<NoiseOptions>,
 }
 
 impl Default for ExperimentOptions {
@@ -333,7 +335,8 @@ pub fn run(
 
     // The Cramér–Rao bound at θ_true with the true noise model.
     let t = Instant::now();
-    let crb = cramer_rao_column(drive, theta_true, opts.noise.as_ref());
+    let noise = opts.noise.as_ref().map(|n| NoiseModel::from_sim(n, drive.sample_time_s()));
+    let crb = cramer_rao_column(drive, theta_true, noise.as_ref());
     timing.cramer_rao_bound = t.elapsed().as_secs_f64();
 
     // The 3-step calibration (steps 1–3), keeping the compensated inputs.
@@ -677,8 +680,7 @@ mod tests {
         let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 4, ..Default::default() });
         let calibration = CalibrationOptions { method, seed: 3, ..Default::default() };
         let reachable = ReachableOptions { particles: 10, iterations: 5, refine_iterations: 20, ..Default::default() };
-        let noise = NoiseModel::from_sim(&sim.sidecar.settings.noise, sim.drive.sample_time_s());
-        let opts = ExperimentOptions { calibration, reachable, noise: Some(noise) };
+        let opts = ExperimentOptions { calibration, reachable, noise: Some(sim.sidecar.settings.noise.clone()) };
         let e = run(&sim.drive, Some(&sim.sidecar.theta_true), &opts, None).expect("experiment");
         let sigma = e.cramer_rao.sigma.expect("the bound of a simulated drive");
         assert!(e.cramer_rao.unavailable.is_none());

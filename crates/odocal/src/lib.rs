@@ -88,7 +88,7 @@
 //! # fn main() -> Result<(), odocal::Error> {
 //! use odocal::{calibrate, sim, CalibrationOptions, Method};
 //! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
-//! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
+//! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, noise: "off".parse()?, ..sim::SimOptions::paper(1) })?;
 //! let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
 //! let report = calibrate(&sim.drive, &opts)?;
 //! assert!((report.theta.t_r - sim.sidecar.theta_true.t_r).abs() < 1e-6);

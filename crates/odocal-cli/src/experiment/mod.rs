@@ -9,7 +9,6 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use odocal::compensate::{QpOptions, SolverKind};
-use odocal::eiv::NoiseModel;
 use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming};
 use odocal::settings::Settings;
 use odocal::sim::{self, NoiseOptions, SimOptions};
@@ -85,9 +84,9 @@ struct Outputs {
     timing: Timing,
 }
 
-/// The drive of the experiment, its true θ and noise model when known, and
+/// The drive of the experiment, its true θ and simulator noise when known, and
 /// where it came from.
-type DriveAndTruth = (Drive, Option<Theta>, Option<NoiseModel>, DriveInfo);
+type DriveAndTruth = (Drive, Option<Theta>, Option<NoiseOptions>, DriveInfo);
 
 /// Runs the experiment.
 pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
@@ -236,7 +235,7 @@ fn read_drive(path: &Path) -> Result<DriveAndTruth> {
         noise: None,
         wheel_rotation_rel_error_rms: sidecar.as_ref().map(|s| s.stats.wheel_rotation_rel_error_rms),
     };
-    let noise = sidecar.as_ref().map(|s| NoiseModel::from_sim(&s.settings.noise, drive.sample_time_s()));
+    let noise = sidecar.as_ref().map(|s| s.settings.noise.clone());
     Ok((drive, sidecar.map(|s| s.theta_true), noise, info))
 }
 
@@ -257,7 +256,7 @@ fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
         noise: Some(a.noise.clone()),
         wheel_rotation_rel_error_rms: Some(s.wheel_rotation_rel_error_rms),
     };
-    let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
+    let noise = out.sidecar.settings.noise.clone();
     Ok((out.drive, Some(out.sidecar.theta_true), Some(noise), info))
 }
 

@@ -15,9 +15,14 @@ use odocal::Extrinsics;
 /// A noise-free 3 km drive whose reference heading is turned by `delta`.
 fn drive(dir: &Path, name: &str, seed: u64, delta: f64) -> String {
     let mount = Extrinsics { heading_offset: delta, ..Extrinsics::default() };
-    let s =
-        simulate(&SimOptions { length_km: 3.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(seed) })
-            .expect("simulate");
+    let s = simulate(&SimOptions {
+        length_km: 3.0,
+        substeps: 1,
+        reference_mount: mount,
+        noise: "off".parse().expect("the off preset"),
+        ..SimOptions::paper(seed)
+    })
+    .expect("simulate");
     let p = dir.join(name);
     s.drive.write_csv(&p).expect("write");
     p.to_str().expect("utf8").to_owned()
@@ -258,8 +263,7 @@ fn the_truth_row_carries_the_reference_s_heading_bias() {
     let d = tempfile::tempdir().expect("tmp");
     let off: odocal::sim::NoiseOptions = "off".parse().expect("preset");
     let noise = odocal::sim::NoiseOptions { heading_bias_rad: 0.02, ..off };
-    let s =
-        simulate(&SimOptions { length_km: 3.0, substeps: 1, noise, ..SimOptions::noise_free(33) }).expect("simulate");
+    let s = simulate(&SimOptions { length_km: 3.0, substeps: 1, noise, ..SimOptions::paper(33) }).expect("simulate");
     let p = d.path().join("biased.csv");
     s.drive.write_csv(&p).expect("write");
     s.sidecar.write_beside(&p).expect("sidecar");

@@ -22,12 +22,19 @@ fn a_validation_drive_applies_its_own_reference() {
     let d = tempfile::tempdir().expect("tmp");
     // The calibration drive: the reference at the axle.
     let fit = d.path().join("fit.csv");
-    let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::noise_free(5) }).expect("simulate");
+    let sim =
+        simulate(&SimOptions { length_km: 3.0, noise: "off".parse().expect("the off preset"), ..SimOptions::paper(5) })
+            .expect("simulate");
     sim.drive.write_csv(&fit).expect("write");
     // The validation drive: the reference 0.9 m behind and 0.3 m left of the axle, turned by −10 mrad.
     let mount = Extrinsics { lever_x: -0.9, lever_y: 0.3, heading_offset: -0.01 };
-    let other = simulate(&SimOptions { length_km: 3.0, reference_mount: mount, ..SimOptions::noise_free(6) })
-        .expect("simulate");
+    let other = simulate(&SimOptions {
+        length_km: 3.0,
+        reference_mount: mount,
+        noise: "off".parse().expect("the off preset"),
+        ..SimOptions::paper(6)
+    })
+    .expect("simulate");
     let csv = d.path().join("other.csv");
     other.drive.write_csv(&csv).expect("write");
     let toml = d.path().join("other.toml");

@@ -26,7 +26,7 @@ use crate::progress::ProgressFn;
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{validate, ValidateOptions, sim::{simulate, SimOptions}};
-/// let s = simulate(&SimOptions { length_km: 2.0, substeps: 1, ..SimOptions::noise_free(1) })?;
+/// let s = simulate(&SimOptions { length_km: 2.0, substeps: 1, noise: "off".parse()?, ..SimOptions::paper(1) })?;
 /// let r = validate(&s.drive, &s.sidecar.theta_true, &ValidateOptions::default(), None)?;
 /// assert!(r.validation.mean_position_error_m < 1e-6);
 /// assert!(r.drive_fit.expect("the drive's own fit").fits);

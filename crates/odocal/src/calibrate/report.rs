@@ -511,7 +511,10 @@ pub(crate) fn next_drive_of(
 /// passing, plausible fit with held noise levels released): the wheel
 /// noise sources at their upper clamp and the levels held
 /// (`crate::assess::pooling::FallbackUnchecked`).
-fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> crate::assess::pooling::FallbackUnchecked {
+fn fallback_unchecked(
+    e: &crate::eiv::EivReport,
+    opts: &CalibrationOptions,
+) -> crate::assess::pooling::FallbackUnchecked {
     use crate::eiv::{EivWarning, NoiseSource};
     let clamped = e
         .warnings

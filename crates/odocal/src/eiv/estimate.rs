@@ -53,7 +53,7 @@ research_pub! {
     /// # fn main() -> Result<(), odocal::Error> {
     /// # #[cfg(feature = "research")] {
     /// use odocal::{eiv, sim, Theta};
-    /// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, ..sim::SimOptions::noise_free(3) })?;
+    /// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, noise: "off".parse()?, ..sim::SimOptions::paper(3) })?;
     /// let input = eiv::EivInput::from_drive(&out.drive);
     /// let start = Theta { c_e: 1.951, ..out.sidecar.theta_true };
     /// let report = eiv::estimate(&input, &start, &eiv::EivOptions::default())?;

@@ -64,7 +64,7 @@
 //!
 //! Measured (`study_eiv` in crates/odocal-lab, 12 km, seeds 1–20, error mean ± sd;
 //! CRB σ from `cramer_rao_bound`, full Fisher information; "known" = the
-//! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
+//! simulator's noise model from `NoiseModel::from_sim`, fixed; "est." =
 //! η estimated from the default [`NoiseModel`] (a production car's); "boot" = known minus
 //! the `bootstrap` bias, B = 10, seeds 1–20):
 //!

@@ -187,27 +187,30 @@ impl NoiseModel {
         };
     }
 
-    /// The noise model that matches a simulator setting (the "true noise
-    /// model" for `cramer_rao_bound`). Slip is not represented (it is
-    /// absorbed by the common-mode error); the drift time constant is the
-    /// position drift's.
-    pub fn from_sim(n: &crate::sim::NoiseOptions, sample_time_s: f64) -> Self {
-        let ticks = f64::from(n.encoder_ticks_per_revolution);
-        NoiseModel {
-            wheel_white_rel_sigma: n.wheel_white_rel_sigma,
-            quantisation_step_rev_per_s: if ticks > 0.0 { 1.0 / (ticks * sample_time_s) } else { 0.0 },
-            wheel_common_rel_sigma: n.wheel_coloured_rel_sigma,
-            wheel_common_time_constant_s: n.wheel_coloured_time_constant_s,
-            wheel_differential_rel_sigma: n.wheel_coloured_differential_rel_sigma,
-            wheel_differential_time_constant_s: n.wheel_coloured_time_constant_s,
-            position_white_sigma_m: n.position_white_sigma_m,
-            heading_white_sigma_rad: n.heading_white_sigma_rad,
-            position_drift_sigma_m: n.position_drift_sigma_m,
-            heading_drift_sigma_rad: n.heading_drift_sigma_rad,
-            drift_time_constant_s: n.position_drift_time_constant_s,
-            lateral_acceleration_sigma_m_per_s2: n.lateral_acceleration_white_sigma_m_per_s2,
-            sideslip_sigma_rad: n.sideslip_sigma_rad,
-            sideslip_time_constant_s: n.sideslip_time_constant_s,
+    research_pub! {
+        /// The noise model that matches a simulator setting (the "true noise
+        /// model" for `cramer_rao_bound`; outside the crate, the experiment's
+        /// `ExperimentOptions::noise` takes the simulator's settings). Slip is
+        /// not represented (it is absorbed by the common-mode error); the drift
+        /// time constant is the position drift's.
+        fn from_sim(n: &crate::sim::NoiseOptions, sample_time_s: f64) -> Self {
+            let ticks = f64::from(n.encoder_ticks_per_revolution);
+            NoiseModel {
+                wheel_white_rel_sigma: n.wheel_white_rel_sigma,
+                quantisation_step_rev_per_s: if ticks > 0.0 { 1.0 / (ticks * sample_time_s) } else { 0.0 },
+                wheel_common_rel_sigma: n.wheel_coloured_rel_sigma,
+                wheel_common_time_constant_s: n.wheel_coloured_time_constant_s,
+                wheel_differential_rel_sigma: n.wheel_coloured_differential_rel_sigma,
+                wheel_differential_time_constant_s: n.wheel_coloured_time_constant_s,
+                position_white_sigma_m: n.position_white_sigma_m,
+                heading_white_sigma_rad: n.heading_white_sigma_rad,
+                position_drift_sigma_m: n.position_drift_sigma_m,
+                heading_drift_sigma_rad: n.heading_drift_sigma_rad,
+                drift_time_constant_s: n.position_drift_time_constant_s,
+                lateral_acceleration_sigma_m_per_s2: n.lateral_acceleration_white_sigma_m_per_s2,
+                sideslip_sigma_rad: n.sideslip_sigma_rad,
+                sideslip_time_constant_s: n.sideslip_time_constant_s,
+            }
         }
     }
 

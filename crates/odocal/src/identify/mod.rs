@@ -658,7 +658,7 @@ research_pub! {
     /// # fn main() -> Result<(), odocal::Error> {
     /// # #[cfg(feature = "research")] {
     /// use odocal::{identify, segment, sim, Theta};
-    /// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
+    /// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, noise: "off".parse()?, ..sim::SimOptions::paper(7) })?.drive;
     /// let selected = segment::calibration_segments(&drive, &Default::default())?;
     /// let data: Vec<_> = selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();
     /// let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &Default::default())?;

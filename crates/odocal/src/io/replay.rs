@@ -29,7 +29,7 @@ const CHUNK: usize = 400;
 /// use odocal::sim;
 /// let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
 /// let csv = dir.path().join("a.csv");
-/// sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(1) })?.drive.write_csv(&csv)?;
+/// sim::simulate(&sim::SimOptions { length_km: 2.0, noise: "off".parse()?, ..sim::SimOptions::paper(1) })?.drive.write_csv(&csv)?;
 /// let drive = Replay::open(&csv, |line| { eprintln!("{line}"); Ok::<(), odocal::Error>(()) })?;
 /// let mut samples = 0;
 /// for chunk in drive.chunks() {

@@ -556,8 +556,10 @@ impl SimOptions {
         }
     }
 
-    /// The SPEC defaults without any noise (measured == truth).
-    pub fn noise_free(seed: u64) -> Self {
+    /// The SPEC defaults without any noise (measured == truth): the tests'
+    /// `SimOptions { noise: "off".parse()?, ..SimOptions::paper(seed) }`.
+    #[cfg(test)]
+    pub(crate) fn noise_free(seed: u64) -> Self {
         SimOptions { noise: NoiseOptions::off(), ..SimOptions::paper(seed) }
     }
 

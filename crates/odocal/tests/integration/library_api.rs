@@ -9,7 +9,9 @@ use odocal::{
 };
 
 fn drive() -> Drive {
-    simulate(&SimOptions { length_km: 1.0, ..SimOptions::noise_free(1) }).expect("simulate").drive
+    simulate(&SimOptions { length_km: 1.0, noise: "off".parse().expect("the off preset"), ..SimOptions::paper(1) })
+        .expect("simulate")
+        .drive
 }
 
 /// A segment offset or length too large for any drive is refused naming
