@@ -6,7 +6,7 @@ use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::io::{RawStream, StreamOptions};
+use odocal::io::RawStream;
 use odocal::Manifest;
 
 use crate::convert::{column, json, not_an_array_of, table, to_py, Column};
@@ -26,16 +26,17 @@ pub(crate) struct PyRawStream {
 impl PyRawStream {
     /// The streamed import of the manifest at `manifest` (its streams are
     /// pushed, not read), the clock offset estimated on the first
-    /// `warm_up_s` seconds of the wheel stream. Raises `OdocalError` for a
-    /// manifest that is not streamed (the reason named) or a bad warm-up.
+    /// `warm_up_s` seconds of the wheel stream (None: the library's 300 s).
+    /// Raises `OdocalError` for a manifest that is not streamed (the reason
+    /// named) or a bad warm-up.
     #[new]
-    #[pyo3(signature = (manifest, *, warm_up_s=StreamOptions::default().warm_up_s))]
+    #[pyo3(signature = (manifest, *, warm_up_s=None))]
     fn new(
         manifest: std::path::PathBuf,
-        #[pyo3(from_py_with = crate::convert::real)] warm_up_s: f64,
+        #[pyo3(from_py_with = crate::convert::opt_real)] warm_up_s: Option<f64>,
     ) -> PyResult<Self> {
         let m = Manifest::from_path(&manifest).map_err(lib_err)?;
-        let raw = RawStream::new(&m, StreamOptions { warm_up_s }).map_err(lib_err)?;
+        let raw = RawStream::new(&m, warm_up_s).map_err(lib_err)?;
         Ok(PyRawStream { raw, manifest: m, report: None })
     }
 

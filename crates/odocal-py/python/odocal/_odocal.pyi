@@ -173,10 +173,11 @@ class RawStream:
     """The streamed import (``odocal.online.RawStream``): a manifest's streams pushed
     message by message, canonical samples taken as they become ready."""
 
-    def __init__(self, manifest: _Path, *, warm_up_s: float = 300.0) -> None:
+    def __init__(self, manifest: _Path, *, warm_up_s: Optional[float] = None) -> None:
         """The streamed import of the manifest at ``manifest`` (its streams are pushed,
         not read); the clock offset is estimated on the first ``warm_up_s`` seconds of the
-        wheel stream. Raises OdocalError for a manifest that is not streamed (naming why)."""
+        wheel stream (None: 300). Raises OdocalError for a manifest that is not streamed
+        (naming why)."""
     @property
     def streams(self) -> dict[str, dict[str, Any]]:
         """Per stream: ``file``, ``time_column`` and the ``columns`` each message carries,

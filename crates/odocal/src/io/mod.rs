@@ -14,5 +14,5 @@ pub(crate) mod import;
 pub(crate) mod param_file;
 mod replay;
 
-pub use import::stream::{RawStream, StreamOptions};
+pub use import::stream::RawStream;
 pub use replay::Replay;

@@ -15,7 +15,7 @@
 //!   unwrapped row by row, and interpolated at the output times from the
 //!   rows around them;
 //! - the **clock offset** is estimated once, on a *warm-up prefix*: the
-//!   first [`StreamOptions::warm_up_s`] of the wheel stream (and the rows of
+//!   first `warm_up_s` ([`RawStream::new`]) of the wheel stream (and the rows of
 //!   the other streams up to the same time). The streams are held until
 //!   then; the offset is fixed from then on. A drive no longer than the
 //!   warm-up is estimated on all of it, as the whole import does; a longer
@@ -34,7 +34,7 @@
 //!   next sample, and the samples at the start wait until the vehicle
 //!   first moves faster than `derive_heading_min_speed_m_per_s` (their
 //!   heading is back-filled from that direction) — for at most
-//!   [`StreamOptions::warm_up_s`] of pose time: a longer standstill before
+//!   `warm_up_s` of pose time: a longer standstill before
 //!   the first motion releases its oldest samples without a heading, and
 //!   the output samples before the samples still held are invalid (a gap,
 //!   "pose heading unknown"; the whole import keeps them in a part with
@@ -97,7 +97,7 @@ use engine::Engine;
 
 /// Settings of the streamed import.
 #[derive(Debug, Clone, PartialEq)]
-pub struct StreamOptions {
+pub(crate) struct StreamOptions {
     /// Wheel-stream time over which the clock offset is estimated before
     /// any sample comes out, s. Default 300: long enough for the clock
     /// estimate to see several turns and speed changes, short enough that
@@ -130,10 +130,10 @@ pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
 ///
 /// ```
 /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
-/// use odocal::io::{RawStream, StreamOptions};
+/// use odocal::io::RawStream;
 /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
 /// let manifest = odocal::Manifest::from_path(path.as_ref())?;
-/// let mut raw = RawStream::new(&manifest, StreamOptions::default())?;
+/// let mut raw = RawStream::new(&manifest, None)?;
 /// // Each stream's file row by row, as a live system would send its messages.
 /// let streams: Vec<(String, Vec<String>)> = raw.columns().map(|(n, _, c)| (n.to_string(), c.to_vec())).collect();
 /// for (name, file) in manifest.stream_files() {
@@ -173,12 +173,22 @@ pub struct RawStream {
 }
 
 impl RawStream {
-    /// The streamed import of `manifest`.
+    /// The streamed import of `manifest`, the clock offset estimated over
+    /// the first `warm_up_s` seconds of wheel-stream time before any sample
+    /// comes out (`None`: 300 s, long enough for the clock estimate to see
+    /// several turns and speed changes, short enough that the held streams
+    /// stay small: 5 min of a 1 kHz wheel log is 300,000 rows).
     ///
     /// # Errors
     /// [`Error::Manifest`] when the manifest asks for what is not streamed
     /// (a source other than CSV) or the warm-up is not a positive number of seconds.
-    pub fn new(manifest: &Manifest, opts: StreamOptions) -> Result<RawStream> {
+    pub fn new(manifest: &Manifest, warm_up_s: Option<f64>) -> Result<RawStream> {
+        let defaults = StreamOptions::default();
+        RawStream::with_options(manifest, StreamOptions { warm_up_s: warm_up_s.unwrap_or(defaults.warm_up_s) })
+    }
+
+    /// [`RawStream::new`] with the settings `opts`.
+    pub(crate) fn with_options(manifest: &Manifest, opts: StreamOptions) -> Result<RawStream> {
         if let Some(why) = not_streamable(manifest) {
             return Err(manifest.error(
                 "streams",

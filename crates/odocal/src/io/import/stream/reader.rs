@@ -135,7 +135,7 @@ impl ManifestStream {
     /// # Errors
     /// [`RawStream::new`]'s; a file that cannot be opened or lacks a column.
     pub(crate) fn open(manifest: &Manifest, opts: StreamOptions) -> Result<ManifestStream> {
-        let raw = RawStream::new(manifest, opts)?;
+        let raw = RawStream::with_options(manifest, opts)?;
         let mut files = Vec::new();
         for (name, _, cols) in raw.columns() {
             files.push(CsvRows::open(manifest, name, cols)?);

@@ -101,7 +101,7 @@ fn unsupported_manifests_are_refused_with_the_reason() {
     let m = manifest("../../examples/psu-mapping-van/manifest.toml");
     assert_eq!(not_streamable(&m), None, "a road bank is streamed");
     let m = manifest("../../examples/psu-mapping-van/manifest-mcap.toml");
-    let e = RawStream::new(&m, StreamOptions::default()).expect_err("mcap").to_string();
+    let e = RawStream::with_options(&m, StreamOptions::default()).expect_err("mcap").to_string();
     assert!(e.contains("cannot be imported as a stream") && e.contains("is an MCAP source, read whole"), "{e}");
     let m = manifest("tests/data/parquet/manifest.toml");
     let why = not_streamable(&m).expect("parquet is read whole");
@@ -420,7 +420,7 @@ fn a_long_standstill_before_the_first_motion_is_held_for_at_most_the_warm_up() {
         syn.write(dir.path());
         let m = Synthetic::manifest(dir.path());
         let whole = crate::io::import::import_drive(&m).expect("import");
-        let mut s = RawStream::new(&m, opts.clone()).expect("stream");
+        let mut s = RawStream::with_options(&m, opts.clone()).expect("stream");
         let (most, r, taken) = syn.push(&mut s, f64::INFINITY);
         r.expect("streamed");
         peaks.push(most);
@@ -449,14 +449,14 @@ fn a_long_standstill_before_the_first_motion_is_held_for_at_most_the_warm_up() {
 fn a_stalled_stream_is_named_once_the_rows_held_reach_the_bound() {
     let syn = Synthetic::new(2.0, 200.0);
     let m = Synthetic::manifest(Path::new("/nonexistent"));
-    let mut s = RawStream::new(&m, StreamOptions { warm_up_s: 20.0 }).expect("stream");
+    let mut s = RawStream::with_options(&m, StreamOptions { warm_up_s: 20.0 }).expect("stream");
     let (most, r, _) = syn.push(&mut s, 100.0);
     let e = r.expect_err("stalled").to_string();
     assert!(e.contains("streams.p") && e.contains("stalled") && e.contains("100.000 s"), "{e}");
     assert!(most < 50 * 45, "held {most} rows");
     // The pose stopping 30 s before the wheels: within the bound.
     let syn = Synthetic::new(2.0, 60.0);
-    let mut s = RawStream::new(&m, StreamOptions { warm_up_s: 20.0 }).expect("stream");
+    let mut s = RawStream::with_options(&m, StreamOptions { warm_up_s: 20.0 }).expect("stream");
     let (_, r, _) = syn.push(&mut s, 32.0);
     assert!(r.as_ref().err().is_none_or(|e| !e.to_string().contains("stalled")), "{r:?}");
 }
