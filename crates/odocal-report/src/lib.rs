@@ -138,7 +138,7 @@ impl ParamRow {
         let sd = x.robust.as_ref().map_or(x.std_dev, |r| r.std_dev);
         let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(sd));
         let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
-        odocal::ParamSet::EXTRINSICS
+        [odocal::Param::LeverX, odocal::Param::LeverY, odocal::Param::HeadingOffset]
             .into_iter()
             .enumerate()
             .map(|(i, p)| {

@@ -357,7 +357,7 @@ fn modules_use_only_lower_layers() {
 
 /// The most `pub` items `src/` may declare (module docs: how they are
 /// counted).
-const PUBLIC_ITEM_BUDGET: usize = 285;
+const PUBLIC_ITEM_BUDGET: usize = 250;
 
 /// The kinds of item the count looks for after `pub `.
 const PUBLIC_KINDS: [&str; 11] =

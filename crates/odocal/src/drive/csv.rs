@@ -492,8 +492,9 @@ impl Drive {
         Ok((drive, tail_warning(&bytes, path).into_iter().collect()))
     }
 
-    /// Parses canonical CSV from bytes; `path` is used in error messages.
-    pub fn parse_csv(bytes: &[u8], path: &Path) -> Result<Drive> {
+    /// Parses canonical CSV from bytes; `path` is used in error messages
+    /// (outside the crate: [`Drive::read_csv`] of a file).
+    pub(crate) fn parse_csv(bytes: &[u8], path: &Path) -> Result<Drive> {
         if let Some(what) = not_csv(bytes) {
             return Err(Error::InvalidDrive { context: path.display().to_string(), reason: what.into() });
         }

@@ -38,9 +38,9 @@ impl Drive {
     /// let s: Signals = (0..4).map(|k| [k as f64, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]).collect();
     /// let d = DriveBuilder { t, measured: s, ..Default::default() }.build()?;
     /// assert_eq!(d.fingerprint().len(), 64);
-    /// let mut csv = Vec::new();
-    /// d.write_csv_to(&mut csv)?;
-    /// let back = Drive::parse_csv(&csv, std::path::Path::new("d.csv"))?;
+    /// let dir = tempfile::tempdir()?;
+    /// d.write_csv(dir.path().join("d.csv"))?;
+    /// let (back, _) = Drive::read_csv(dir.path().join("d.csv"))?;
     /// assert_eq!(back.fingerprint(), d.fingerprint());
     /// # Ok(()) }
     /// ```

@@ -152,8 +152,10 @@ impl ParamSet {
         /// The four parameters of θ.
         const THETA: ParamSet = ParamSet(0b1111);
     }
-    /// The reference extrinsics (lever_x, lever_y, heading_offset).
-    pub const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
+    research_pub! {
+        /// The reference extrinsics (lever_x, lever_y, heading_offset).
+        const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
+    }
     /// The lever arm (lever_x, lever_y); `lever-arm` in a parsed list.
     pub(crate) const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
 
