@@ -211,10 +211,10 @@ fn is_zero(v: &f64) -> bool {
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::sim::{simulate, NoiseOptions, SimOptions, WorldSummary};
+/// use odocal::sim::{simulate, NoiseOptions, SimOptions};
 /// let noise: NoiseOptions = "random:7".parse()?;
 /// assert_eq!("random:7".parse::<NoiseOptions>()?, noise);
-/// println!("world 7 is {}", WorldSummary::from(&noise).regime);
+/// println!("world 7: {}", noise.world_summary());
 /// let out = simulate(&SimOptions { length_km: 1.0, noise, ..SimOptions::paper(1) })?;
 /// assert!(out.drive.len() > 100);
 /// # Ok(()) }

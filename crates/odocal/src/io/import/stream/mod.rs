@@ -135,14 +135,15 @@ pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
 /// let manifest = odocal::Manifest::from_path(path.as_ref())?;
 /// let mut raw = RawStream::new(&manifest, None)?;
 /// // Each stream's file row by row, as a live system would send its messages.
-/// let streams: Vec<(String, Vec<String>)> = raw.columns().map(|(n, _, c)| (n.to_string(), c.to_vec())).collect();
+/// let streams: Vec<(String, Option<String>, Vec<String>)> =
+///     raw.columns().map(|(n, t, c)| (n.to_string(), t.map(str::to_string), c.to_vec())).collect();
 /// for (name, file) in manifest.stream_files() {
-///     let cols = &streams.iter().find(|(n, _)| *n == name).ok_or("stream")?.1;
+///     let (_, time_column, cols) = streams.iter().find(|(n, _, _)| *n == name).ok_or("stream")?;
 ///     let text = std::fs::read_to_string(file)?;
 ///     let mut lines = text.lines();
 ///     let head: Vec<&str> = lines.next().ok_or("header")?.split(',').collect();
 ///     let at = |c: &str| head.iter().position(|h| *h == c).ok_or("column");
-///     let (time, idx) = (at(manifest.time_column(&name).ok_or("time")?)?, cols.iter().map(|c| at(c)).collect::<Result<Vec<_>, _>>()?);
+///     let (time, idx) = (at(time_column.as_deref().ok_or("time")?)?, cols.iter().map(|c| at(c)).collect::<Result<Vec<_>, _>>()?);
 ///     for line in lines {
 ///         let f: Vec<f64> = line.split(',').map(str::parse).collect::<Result<_, _>>()?;
 ///         raw.push_message(&name, f[time], &idx.iter().map(|&i| f[i]).collect::<Vec<_>>())?;
