@@ -231,7 +231,7 @@ impl Default for CorrectBias {
 impl EivMethodOptions {
     /// The filter options the method runs: [`EivMethodOptions::filter`] with
     /// [`EivMethodOptions::correct_bias`] applied, unless `filter` sets its
-    /// own [`EivOptions::bias_correction`].
+    /// own [`ResearchOptions::bias_correction`](crate::eiv::ResearchOptions::bias_correction).
     pub(crate) fn effective_filter(&self) -> EivOptions {
         let mut f = self.filter.clone();
         if let (Some(c), BiasCorrection::None) = (self.correct_bias, f.research.bias_correction) {

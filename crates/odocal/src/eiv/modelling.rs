@@ -206,7 +206,7 @@ research_pub! {
     /// With independent replicates that correction adds Monte Carlo noise: the
     /// corrected t_r is more spread (RMS/CRB on paper 1.69 → 1.82) and
     /// fresh-drive Ē_p 1–4 cm worse. Antithetic pairs
-    /// ([`EivOptions::bootstrap_antithetic`](crate::eiv::EivOptions::bootstrap_antithetic), set by
+    /// ([`ResearchOptions::bootstrap_antithetic`](crate::eiv::ResearchOptions::bootstrap_antithetic), set by
     /// `EivOptions::correct_bias`), whose means cancel the replicates' odd
     /// error, remove the same bias with B = 4 (high t_r +0.458 %, t 1.9;
     /// largest |t| 2.8 on paper) and the RMS error falls (t_r on high 5.38 →

@@ -393,11 +393,11 @@ research_pub! {
         pub first_order_bias: Option<FirstOrderBias>,
         /// The root of the profile cost before any `BiasCorrection`.
         pub theta_uncorrected: Theta,
-        /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
+        /// The bias subtracted by [`ResearchOptions::bias_correction`](crate::eiv::ResearchOptions::bias_correction) (`theta =
         /// theta_uncorrected − bias_subtracted`; zero for a parameter the
         /// correction does not name, zeros without a correction).
         pub bias_subtracted: [f64; 4],
-        /// What the bootstrap of [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) adds to θ's σ
+        /// What the bootstrap of [`ResearchOptions::bias_correction`](crate::eiv::ResearchOptions::bias_correction) adds to θ's σ
         /// (already in [`EivReport::sigma`] and the covariance): the Monte Carlo
         /// error of the subtracted bias, the replicates' covariance over the
         /// number of replicates fitted, for the corrected parameters (zero for
