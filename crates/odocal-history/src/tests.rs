@@ -4,6 +4,14 @@ fn theta(c_e: f64) -> Theta {
     Theta { c_e, c_d: -0.002, t_r: 1.53, d: 0.0008 }
 }
 
+/// A simulated drive of `km` without noise (the `off` preset), from the
+/// paper's route of `seed`.
+fn noise_free_drive(km: f64, seed: u64) -> odocal::Drive {
+    let noise = "off".parse().expect("the off preset");
+    let sim = odocal::sim::SimOptions { length_km: km, noise, ..odocal::sim::SimOptions::paper(seed) };
+    odocal::sim::simulate(&sim).expect("sim").drive
+}
+
 fn sigma(s: f64) -> ParamSigma {
     Theta { c_e: s, c_d: s, t_r: s, d: s }.into()
 }
@@ -425,15 +433,7 @@ fn a_rejected_row_is_listed_but_neither_flagged_nor_pooled() {
     assert!(db.vehicle("van", Some(&[ids[1], ids[3]])).expect("history").pooled.is_none());
     // `follow` starts from the most recent row that is not rejected.
     let csv = dir.path().join("d.csv");
-    odocal::sim::simulate(&odocal::sim::SimOptions {
-        length_km: 1.0,
-        noise: "off".parse().expect("the off preset"),
-        ..odocal::sim::SimOptions::paper(3)
-    })
-    .expect("sim")
-    .drive
-    .write_csv(&csv)
-    .expect("csv");
+    noise_free_drive(1.0, 3).write_csv(&csv).expect("csv");
     let mut start = None;
     follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
         if let FollowEvent::Start { theta, origin } = e {
@@ -472,13 +472,7 @@ fn a_joint_calibration_stands_for_each_of_its_drives() {
 fn follow_skips_a_drive_the_history_holds_a_calibration_of() {
     let dir = tempfile::tempdir().expect("tempdir");
     let csv = dir.path().join("a.csv");
-    let drive = odocal::sim::simulate(&odocal::sim::SimOptions {
-        length_km: 1.0,
-        noise: "off".parse().expect("the off preset"),
-        ..odocal::sim::SimOptions::paper(2)
-    })
-    .expect("sim")
-    .drive;
+    let drive = noise_free_drive(1.0, 2);
     drive.write_csv(&csv).expect("csv");
     let fingerprint = odocal::Drive::read_csv(&csv).expect("read").0.fingerprint();
     let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
@@ -730,15 +724,7 @@ fn concurrent_follows_decide_each_drive_once() {
     let drives: Vec<std::path::PathBuf> = (1..=2)
         .map(|seed| {
             let csv = dir.path().join(format!("d{seed}.csv"));
-            odocal::sim::simulate(&odocal::sim::SimOptions {
-                length_km: 1.5,
-                noise: "off".parse().expect("the off preset"),
-                ..odocal::sim::SimOptions::paper(seed)
-            })
-            .expect("sim")
-            .drive
-            .write_csv(&csv)
-            .expect("csv");
+            noise_free_drive(1.5, seed).write_csv(&csv).expect("csv");
             csv
         })
         .collect();
@@ -1025,15 +1011,7 @@ fn follow_does_not_start_from_a_biased_row() {
         panic!("not new");
     };
     let csv = dir.path().join("d.csv");
-    odocal::sim::simulate(&odocal::sim::SimOptions {
-        length_km: 1.0,
-        noise: "off".parse().expect("the off preset"),
-        ..odocal::sim::SimOptions::paper(3)
-    })
-    .expect("sim")
-    .drive
-    .write_csv(&csv)
-    .expect("csv");
+    noise_free_drive(1.0, 3).write_csv(&csv).expect("csv");
     let mut start = None;
     follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
         if let FollowEvent::Start { theta, origin } = e {
