@@ -967,8 +967,12 @@ fn heading_drift_line(h: &crate::eiv::HeadingDriftTest) -> String {
             "own scale η_6 = {:.2} (e^{:+.2} × the position drift's; likelihood ratio {lr:.1}, score {:.1})",
             h.eta, h.log_ratio, h.score_statistic
         ),
+        (_, Some(lr)) if lr > crate::eiv::HEADING_DRIFT_LR_THRESHOLD => format!(
+            "tied to the position drift (score {:.1}, likelihood ratio {lr:.1}; the separate fit did not converge)",
+            h.score_statistic
+        ),
         (_, Some(lr)) => format!(
-            "tied to the position drift (score {:.1}; separate fit's likelihood ratio {lr:.1} not significant)",
+            "tied to the position drift (score {:.1}; likelihood ratio {lr:.1} not significant)",
             h.score_statistic
         ),
         (_, None) => format!("tied to the position drift (score {:.1})", h.score_statistic),

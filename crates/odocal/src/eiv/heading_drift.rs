@@ -15,12 +15,17 @@
 //! objective at `r = ±1` with θ̂ and η̂ held (two objective-only filter
 //! passes). Where its statistic stays below
 //! [`HEADING_DRIFT_SCORE_GATE`], the tied fit is the result, unchanged to
-//! the bit. Otherwise the separate model is fitted as a continuation from
-//! the tied optimum (each fit a scoring pass started at θ̂, η̂, with the
-//! covariance reference of the tied fit, so that every objective value is
-//! of the same function of (θ, η, r)) at up to [`MAX_SEPARATE_FITS`] values
-//! of `r`; the separate fit is the result when its likelihood ratio
-//! `2 (M_0 − M_r)` exceeds [`HEADING_DRIFT_LR_THRESHOLD`].
+//! the bit. Otherwise the likelihood ratio of the separate model is
+//! measured with θ held at θ̂: at up to [`MAX_RATIOS`] values of `r`
+//! (the first from the score test's parabola, each next from the parabola
+//! through the values so far), M is minimised over η alone, from η̂. θ is
+//! held because θ̂ solves the profile cost J's equations, not M's: M's
+//! slope in θ at θ̂ is large (tens per σ of t_r on a 24 km drive), so M
+//! compared between fits whose θ differ measures that slope more than the
+//! heading drift. Where the ratio `2 (M_0 − min_r M_r)` exceeds
+//! [`HEADING_DRIFT_LR_THRESHOLD`], the separate model is fitted at the best
+//! `r` (a scoring pass from θ̂ and that η, with the covariance reference of
+//! the tied fit) and is the result when it converged.
 //!
 //! # The floor's alternative
 //!
@@ -43,8 +48,9 @@
 use serde::{Deserialize, Serialize};
 
 use super::filter::Mode;
-use super::problem::Problem;
-use super::scoring::{scoring_pass, PassOutcome};
+use super::problem::{Evaluation, Problem};
+use super::scoring::{eta_ratio, line_search, scoring_pass, PassOutcome, Search};
+use super::steps::{damp_eta_step, eta_step};
 use super::{CovarianceMode, EivOptions, NoiseSource};
 use crate::error::Result;
 use crate::model::Theta;
@@ -55,12 +61,12 @@ use crate::model::Theta;
 /// quadratic approximation when η_4 is re-fitted too).
 pub(crate) const HEADING_DRIFT_SCORE_GATE: f64 = 3.84;
 
-/// The likelihood ratio `2 (M_tied − M_separate)` above which the separate
+/// The likelihood ratio `2 (M_tied − M_r)` (θ held) above which the separate
 /// heading-drift scale is the result: the χ²₁ quantile at 0.1 %.
 pub(crate) const HEADING_DRIFT_LR_THRESHOLD: f64 = 10.83;
 
-/// Fits of the separate model at most (values of `r` tried).
-const MAX_SEPARATE_FITS: usize = 3;
+/// Values of `r` tried at most.
+const MAX_RATIOS: usize = 3;
 
 /// The step in `r` of the score test's differences.
 const SCORE_STEP: f64 = 1.0;
@@ -77,10 +83,11 @@ research_pub! {
         /// the objective M that a Newton step in `r = η_6 − η_4` would give
         /// with θ and η held (from M at `r = −1, 0, +1`).
         pub score_statistic: f64,
-        /// `2 (M_tied − M_separate)` of the best separate fit (None where the
-        /// score statistic kept the tie without fitting it).
+        /// `2 (M_tied − M_r)` at the best `r` tried, M_r minimised over η with
+        /// θ held at the tied θ̂ (None where the score statistic kept the
+        /// tie).
         pub likelihood_ratio: Option<f64>,
-        /// `r = η_6 − η_4` of the best separate fit (0 where none was fitted).
+        /// The best `r = η_6 − η_4` tried (0 where none was).
         pub log_ratio: f64,
         /// The result uses the separate heading-drift scale.
         pub separate: bool,
@@ -88,7 +95,7 @@ research_pub! {
         /// below its floor
         /// [`ResearchOptions::heading_drift_min_eta`](crate::eiv::ResearchOptions::heading_drift_min_eta)).
         pub eta: f64,
-        /// Filter passes of the test and the separate fits, `[with
+        /// Filter passes of the test, its η fits and the separate fit, `[with
         /// derivatives, objective only]` (not in [`EivReport::evaluations`](crate::eiv::EivReport::evaluations)).
         pub evaluations: [usize; 2],
         /// Where the tie holds the heading drift at its floor (η_4 below
@@ -180,7 +187,7 @@ pub(super) fn options_without_floor(opts: &EivOptions) -> EivOptions {
 }
 
 /// `opts` with the heading drift's σ multiplied by `exp(r/2)`.
-fn options_at(opts: &EivOptions, r: f64) -> EivOptions {
+pub(super) fn options_at(opts: &EivOptions, r: f64) -> EivOptions {
     let mut o = opts.clone();
     o.noise.heading_drift_sigma_rad *= (0.5 * r).exp();
     o
@@ -241,42 +248,98 @@ pub(super) fn test<'a>(
     let r_max = upper.min(opts.eta_bounds[1] - tied.eta[NoiseSource::PoseDrift.index()]).max(0.0);
     let r_min = -MAX_RATIO;
     let first = if c > 0.0 { -g / c } else { -2.0 * g.signum() };
+    // The likelihood ratio with θ held at the tied θ̂: M minimised over η
+    // alone at each `r` tried. θ̂ solves the profile cost's equations, not
+    // M's, and M's slope in θ there is large, so M compared between fits
+    // whose θ differ measures that slope rather than the heading drift.
     let mut tried: Vec<(f64, f64)> = vec![(0.0, m0)];
-    let mut best: Option<(f64, f64, SeparateFit<'a>)> = None;
+    let mut best: Option<(f64, f64, [f64; 6])> = None;
     let mut r = first.clamp(r_min, r_max);
-    for _ in 0..MAX_SEPARATE_FITS {
+    for _ in 0..MAX_RATIOS {
         if tried.iter().any(|(x, _)| (x - r).abs() < 0.1) {
             break;
         }
-        let o = options_at(opts, r);
-        let p = problem_at(prob, &o);
-        let (theta0, eta0) = match &best {
-            Some((_, _, s)) => (s.pass.theta, s.pass.eta),
-            None => (tied.theta, tied.eta),
-        };
-        let pass = scoring_pass(&p, theta0, eta0, tied.theta_reference, tied.free, false, &o);
+        let p = problem_at(prob, &options_at(opts, r));
+        let profile = eta_profile(&p, tied, follows, opts);
         count(&p);
-        let Ok(pass) = pass else { break };
-        let cost = pass.eval.total.merit();
+        let Ok((cost, eta)) = profile else { break };
         tried.push((r, cost));
-        if best.as_ref().is_none_or(|(_, c, _)| cost < *c) {
-            best = Some((r, cost, SeparateFit { model: SeparateModel { opts: o, prob: p }, pass }));
+        if best.is_none_or(|(_, c, _)| cost < c) {
+            best = Some((r, cost, eta));
         }
         r = next_ratio(&tried, g).clamp(r_min, r_max);
     }
-    out.evaluations = evaluations.get();
-    let Some((r, cost, fit)) = best else {
+    let Some((r, cost, eta)) = best else {
+        out.evaluations = evaluations.get();
         return Ok((out, None));
     };
     let lr = 2.0 * (m0 - cost);
     out.likelihood_ratio = Some(lr);
     out.log_ratio = r;
-    if lr > opts.research.heading_drift_lr_threshold && fit.pass.report.termination.converged() {
-        out.separate = true;
-        out.eta = heading_drift_eta(opts, fit.pass.eta[NoiseSource::PoseDrift.index()]) + r;
-        return Ok((out, Some(fit)));
+    if lr <= opts.research.heading_drift_lr_threshold {
+        out.evaluations = evaluations.get();
+        return Ok((out, None));
     }
-    Ok((out, None))
+    // The data reject the tie: the separate model's fit at the best `r`,
+    // from θ̂ and the η that minimised M there.
+    let o = options_at(opts, r);
+    let p = problem_at(prob, &o);
+    let pass = scoring_pass(&p, tied.theta, eta, tied.theta_reference, tied.free, false, &o);
+    count(&p);
+    out.evaluations = evaluations.get();
+    match pass {
+        Ok(pass) if pass.report.termination.converged() => {
+            out.separate = true;
+            out.eta = heading_drift_eta(opts, pass.eta[NoiseSource::PoseDrift.index()]) + r;
+            Ok((out, Some(SeparateFit { model: SeparateModel { opts: o, prob: p }, pass })))
+        }
+        _ => Ok((out, None)),
+    }
+}
+
+/// Fisher-scoring steps in η at most of [`eta_profile`].
+const MAX_PROFILE_STEPS: usize = 6;
+
+/// The `max |Δη|/σ` below which [`eta_profile`] stops: M is then within
+/// about `½·0.1²` per source of its minimum over η, far below the
+/// likelihood ratio's threshold.
+const PROFILE_TOLERANCE: f64 = 0.1;
+
+/// The objective M minimised over η with θ held at the tied θ̂, on the
+/// problem `p` (a separate model's), from the tied η̂: Fisher-scoring steps
+/// in η, each halved until M does not rise. Returns M and η there.
+pub(super) fn eta_profile(
+    p: &Problem<'_>,
+    tied: &TiedFit,
+    follows: bool,
+    opts: &EivOptions,
+) -> Result<(f64, [f64; 6])> {
+    let bounds = opts.eta_bounds;
+    let mode = Mode::eta_only(follows);
+    let mut eta = tied.eta;
+    let mut ev = p.evaluate(&tied.theta, &tied.theta_reference, &eta, mode)?;
+    for _ in 0..MAX_PROFILE_STEPS {
+        let es = eta_step(&ev.total, &eta, bounds, &opts.eta_held);
+        if eta_ratio(&eta, &es.step, &es.sigma, bounds) < PROFILE_TOLERANCE {
+            break;
+        }
+        let deta = damp_eta_step(&es.step, &eta, 1.0, bounds);
+        let previous = ev.total.merit();
+        let accept = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
+            let c = t.total.merit();
+            (c <= previous, c)
+        };
+        let search =
+            line_search(p, &tied.theta, &eta, &[0.0; 4], &deta, &tied.theta_reference, mode, false, opts, &accept)?;
+        match search {
+            Search::Accepted { eta: et, ev: e, .. } => {
+                eta = et;
+                ev = *e;
+            }
+            Search::Rejected { .. } => break,
+        }
+    }
+    Ok((ev.total.merit(), eta))
 }
 
 /// The next `r` to fit: the vertex of the parabola through the three
