@@ -19,10 +19,10 @@
 //! measured with θ held at θ̂: at up to [`MAX_RATIOS`] values of `r`
 //! (the first from the score test's parabola, each next from the parabola
 //! through the values so far), M is minimised over η alone, from η̂. θ is
-//! held because θ̂ solves the profile cost J's equations, not M's: M's
-//! slope in θ at θ̂ is large (tens per σ of t_r on a 24 km drive), so M
-//! compared between fits whose θ differ measures that slope more than the
-//! heading drift. Where the ratio `2 (M_0 − min_r M_r)` exceeds
+//! held because θ̂ solves the profile cost J's equations, not M's: M has
+//! a slope in θ at θ̂, so M compared between fits whose θ differ measures
+//! that slope as much as the heading drift (docs/method.md, "Heading
+//! drift"). Where the ratio `2 (M_0 − min_r M_r)` exceeds
 //! [`HEADING_DRIFT_LR_THRESHOLD`], the separate model is fitted at the best
 //! `r` (a scoring pass from θ̂ and that η, with the covariance reference of
 //! the tied fit) and is the result when it converged.
