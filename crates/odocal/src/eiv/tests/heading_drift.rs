@@ -137,5 +137,5 @@ fn the_likelihood_ratio_refits_eta_with_theta_held() {
     let held = p.evaluate(&tied.theta, &tied.theta_reference, &tied.eta, filter::Mode::cost(follows)).expect("filter");
     let (m, eta) = eta_profile(&p, &tied, follows, &opts).expect("profile at r = -1");
     assert!(m < held.total.merit() - 1e-6, "{m} vs {}", held.total.merit());
-    assert_ne!(eta, tied.eta);
+    assert!(eta.iter().zip(&tied.eta).any(|(a, b)| (a - b).abs() > 1e-6), "{eta:?}");
 }
