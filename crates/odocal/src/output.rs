@@ -105,7 +105,7 @@ where
     write_file(path, write, false)
 }
 
-/// [`write_atomically`] (`replace`) or [`write_new`].
+/// [`write_atomically`] (`replace`), or the same refusing to replace an existing file.
 fn write_file<F>(path: &Path, write: F, replace: bool) -> Result<()>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,

@@ -223,7 +223,7 @@ struct Fit {
     eta_sigma: [f64; 6],
     free: [bool; 4],
     unobservable: Vec<Param>,
-    /// The ratios that decided `unobservable` ([`EivObservability::start_sigma_over_resolution`]).
+    /// The ratios that decided `unobservable` ([`EivObservability::start_sigma_over_resolution`](super::report::EivObservability::start_sigma_over_resolution)).
     start_ratios: Option<[f64; 4]>,
     passes: Vec<PassReport>,
     /// The last pass's evaluation at the estimate.
