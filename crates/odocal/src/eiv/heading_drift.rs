@@ -249,9 +249,7 @@ pub(super) fn test<'a>(
     let r_min = -MAX_RATIO;
     let first = if c > 0.0 { -g / c } else { -2.0 * g.signum() };
     // The likelihood ratio with θ held at the tied θ̂: M minimised over η
-    // alone at each `r` tried. θ̂ solves the profile cost's equations, not
-    // M's, and M's slope in θ there is large, so M compared between fits
-    // whose θ differ measures that slope rather than the heading drift.
+    // alone at each `r` tried (module docs: why θ is held).
     let mut tried: Vec<(f64, f64)> = vec![(0.0, m0)];
     let mut best: Option<(f64, f64, [f64; 6])> = None;
     let mut r = first.clamp(r_min, r_max);
