@@ -251,8 +251,17 @@ research_pub! {
         /// + t_r_above_start² + between²)`: the σ that stands for the result.
         pub sigma: [Option<f64>; 4],
         /// The method's within-drive σ (for a parameter the EIV filter held at
-        /// its start's estimate: the start's σ).
+        /// its start's estimate: the start's σ; for EIV's own estimate or
+        /// refit, at least its start's cluster-robust σ,
+        /// [`Self::within_from_start`]).
         pub within_drive: [Option<f64>; 4],
+        /// When the result is EIV's own estimate or refit: per parameter its
+        /// batch Gauss-Newton start's cluster-robust σ where that exceeds
+        /// EIV's within-drive σ and so stands as [`Self::within_drive`]
+        /// (module docs, `σ_within`); zeros otherwise. In JSON only when not
+        /// all zero.
+        #[serde(default, skip_serializing_if = "all_zero")]
+        pub within_from_start: [f64; 4],
         /// With the EIV method, the common-mode wheel noise the within-drive σ
         /// leaves out, `within · wheel_common_rel_sigma / 0.025` (module docs,
         /// `h`; `COMMON_MODE_REFERENCE_SIGMA`); zeros otherwise.
@@ -336,6 +345,7 @@ impl NextDriveSigma {
         let mut s = NextDriveSigma {
             sigma: [None; 4],
             within_drive,
+            within_from_start: [0.0; 4],
             common_mode: [0.0; 4],
             wheel_common_rel_sigma: None,
             wheel_common_clamped: false,

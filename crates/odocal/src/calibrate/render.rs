@@ -426,6 +426,15 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
             } else {
                 ""
             };
+            let raised: Vec<&str> = (0..4)
+                .filter(|i| n.within_from_start[*i] > 0.0)
+                .filter_map(|i| Param::from_index(i).map(|p| p.name()))
+                .collect();
+            let raised = if raised.is_empty() {
+                String::new()
+            } else {
+                format!("; {}: its batch G-N start's larger cluster-robust σ", raised.join(", "))
+            };
             let common = match n.wheel_common_rel_sigma {
                 Some(s) if n.common_mode.iter().any(|h| *h > 0.0) => {
                     format!(" ⊕ common-mode wheel noise (EIV's σ_c {:.2} %)", s * 100.0)
@@ -435,7 +444,7 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
             let _ = writeln!(
                 out,
                 "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (next drive) = {}\n    \
-                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`){common}{gap}{floor}{above} ⊕ between-drive \
+                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`{raised}){common}{gap}{floor}{above} ⊕ between-drive \
                  ({between})",
                 NEXT_DRIVE_SIGMA_LABEL
             );

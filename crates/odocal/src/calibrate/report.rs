@@ -442,6 +442,7 @@ pub(crate) fn next_drive_of(
     let mut gap = [0.0; 4];
     let mut released_held = Vec::new();
     let mut unchecked = None;
+    let mut from_start = [0.0; 4];
     if let MethodDetail::Eiv(d) = detail {
         let start = &d.identification;
         let start_sd = start.robust_or_model_covariance();
@@ -453,6 +454,9 @@ pub(crate) fn next_drive_of(
             if w.is_none() && free_here && start.covariance[i][i] > 0.0 && v.is_finite() {
                 *w = Some(v.max(0.0).sqrt());
             }
+        }
+        if d.eiv_result == EivOutcome::Eiv {
+            from_start = start_robust_floor(d, &mut w);
         }
         let plausible = |t: &Theta| {
             crate::assess::trust::check_theta(t, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
@@ -489,6 +493,7 @@ pub(crate) fn next_drive_of(
         }
     }
     let mut n = NextDriveSigma::one_drive(theta, w, gap);
+    n.within_from_start = from_start;
     n.gap_is_refit = matches!(detail, MethodDetail::Eiv(d) if d.refit && d.eiv_result == EivOutcome::Eiv);
     n.gap_released_noise = released_held;
     n.fallback_unchecked = unchecked;
@@ -505,6 +510,29 @@ pub(crate) fn next_drive_of(
         n.with_common_mode(e.noise.wheel_common_rel_sigma, clamped);
     }
     n
+}
+
+/// Raises EIV's within-drive σ `w` to its batch Gauss-Newton start's
+/// cluster-robust σ where that is larger (`crate::pooling`, `σ_within`),
+/// for the parameters both estimated; returns the raised values (zeros
+/// elsewhere). Nothing without a cluster-robust σ (too few clusters): the
+/// start's model σ assumes independent residuals and bounds nothing.
+fn start_robust_floor(d: &EivDetail, w: &mut [Option<f64>; 4]) -> [f64; 4] {
+    let mut raised = [0.0; 4];
+    let start = &d.identification;
+    let Some(robust) = &start.robust else { return raised };
+    for (i, w) in w.iter_mut().enumerate() {
+        let estimated = Param::from_index(i)
+            .is_some_and(|p| !d.start_held.contains(&p) && !start.observability.unobservable.contains(p));
+        let r = robust.covariance[i][i];
+        if let Some(s) = w {
+            if estimated && start.covariance[i][i] > 0.0 && r.is_finite() && r > *s * *s {
+                *s = r.sqrt();
+                raised[i] = *s;
+            }
+        }
+    }
+    raised
 }
 
 /// After a fallback from EIV's fit `e` whose θ fails the guards (with no
