@@ -183,6 +183,21 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     let e = d.eiv.as_ref().expect("the EIV fit's report");
     assert_eq!(e.theta_uncorrected, unused.theta_uncorrected, "the same fit, then corrected");
     assert!(e.bias_subtracted.iter().zip(e.free).any(|(b, f)| f && *b != 0.0), "{:?}", e.bias_subtracted);
+    // The noise model given is far too quiet, so EIV's own σ is far below
+    // what the drive shows: the σ for the next drive takes, parameter by
+    // parameter, the start's cluster-robust σ where that is larger.
+    let robust = d.identification.robust.as_ref().expect("the start's cluster-robust covariance");
+    let own = kept.within_drive_sigma().to_array();
+    let next = kept.next_drive_sigma.as_ref().expect("next-drive σ");
+    let mut raised = 0;
+    for i in 0..4 {
+        let (w, r) = (own[i].expect("estimated"), robust.covariance[i][i].sqrt());
+        assert_eq!(next.within_drive[i], Some(w.max(r)), "parameter {i}");
+        assert_eq!(next.within_from_start[i], if r > w { r } else { 0.0 }, "parameter {i}");
+        assert!(kept.result_sigma().to_array()[i].expect("σ") >= r);
+        raised += usize::from(r > w);
+    }
+    assert!(raised >= 2, "EIV's σ under a noise model far too quiet: {own:?} against {:?}", robust.covariance);
     assert!(kept.warnings.iter().any(Warning::misspecifies_result));
     assert!(kept.verdict.level >= crate::VerdictLevel::Doubtful);
     assert!(kept.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Misspecified { .. })), "{:?}", kept.verdict);
