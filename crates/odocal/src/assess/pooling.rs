@@ -21,7 +21,16 @@
 //! - `σ_within`: the method's within-drive σ (the report's
 //!   `sigma_within_drive`); for a parameter the
 //!   EIV filter held at its batch Gauss-Newton start's estimate, the
-//!   start's σ.
+//!   start's σ. When the result is EIV's own estimate or its refit, per
+//!   parameter at least the start's cluster-robust σ
+//!   (`NextDriveSigma::within_from_start`). EIV's σ holds as far as its
+//!   noise model does: a process the model lacks or makes too fast (wheel
+//!   noise slower than its time constants, a drifting bias) moves EIV's θ
+//!   and its start's alike, and the filter's σ does not see it. The
+//!   start's jackknife over 32.5 s clusters of segments measures how θ
+//!   varies along the drive with no noise model. Not where the start has
+//!   too few clusters for it (its model σ assumes independent residuals
+//!   and bounds nothing).
 //! - `h`: with the EIV method (its own estimate, its refit or its batch
 //!   Gauss-Newton fallback), the common-mode wheel noise the within-drive
 //!   σ leaves out, `h = σ_within · σ_c / σ_ref`: σ_c the common-mode
