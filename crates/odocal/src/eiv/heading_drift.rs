@@ -267,32 +267,30 @@ pub(super) fn test<'a>(
         }
         r = next_ratio(&tried, g).clamp(r_min, r_max);
     }
-    let Some((r, cost, eta)) = best else {
-        out.evaluations = evaluations.get();
-        return Ok((out, None));
-    };
-    let lr = 2.0 * (m0 - cost);
-    out.likelihood_ratio = Some(lr);
-    out.log_ratio = r;
-    if lr <= opts.research.heading_drift_lr_threshold {
-        out.evaluations = evaluations.get();
-        return Ok((out, None));
-    }
-    // The data reject the tie: the separate model's fit at the best `r`,
-    // from θ̂ and the η that minimised M there.
-    let o = options_at(opts, r);
-    let p = problem_at(prob, &o);
-    let pass = scoring_pass(&p, tied.theta, eta, tied.theta_reference, tied.free, false, &o);
-    count(&p);
-    out.evaluations = evaluations.get();
-    match pass {
-        Ok(pass) if pass.report.termination.converged() => {
-            out.separate = true;
-            out.eta = heading_drift_eta(opts, pass.eta[NoiseSource::PoseDrift.index()]) + r;
-            Ok((out, Some(SeparateFit { model: SeparateModel { opts: o, prob: p }, pass })))
+    let separate = best.and_then(|(r, cost, eta)| {
+        let lr = 2.0 * (m0 - cost);
+        out.likelihood_ratio = Some(lr);
+        out.log_ratio = r;
+        if lr <= opts.research.heading_drift_lr_threshold {
+            return None;
         }
-        _ => Ok((out, None)),
-    }
+        // The data reject the tie: the separate model's fit at the best `r`,
+        // from θ̂ and the η that minimised M there.
+        let o = options_at(opts, r);
+        let p = problem_at(prob, &o);
+        let pass = scoring_pass(&p, tied.theta, eta, tied.theta_reference, tied.free, false, &o);
+        count(&p);
+        match pass {
+            Ok(pass) if pass.report.termination.converged() => {
+                out.separate = true;
+                out.eta = heading_drift_eta(opts, pass.eta[NoiseSource::PoseDrift.index()]) + r;
+                Some(SeparateFit { model: SeparateModel { opts: o, prob: p }, pass })
+            }
+            _ => None,
+        }
+    });
+    out.evaluations = evaluations.get();
+    Ok((out, separate))
 }
 
 /// Fisher-scoring steps in η at most of [`eta_profile`].
