@@ -447,16 +447,13 @@ pub(crate) fn next_drive_of(
         let start = &d.identification;
         let start_sd = start.robust_or_model_covariance();
         for (i, w) in w.iter_mut().enumerate() {
-            let free_here = Param::from_index(i).is_some_and(|p| {
-                free.contains(p) && !d.start_held.contains(&p) && !start.observability.unobservable.contains(p)
-            });
             let v = start_sd[i][i];
-            if w.is_none() && free_here && start.covariance[i][i] > 0.0 && v.is_finite() {
+            if w.is_none() && start_estimated(d, free, i) && v.is_finite() {
                 *w = Some(v.max(0.0).sqrt());
             }
         }
         if d.eiv_result == EivOutcome::Eiv {
-            from_start = start_robust_floor(d, &mut w);
+            from_start = start_robust_floor(d, free, &mut w);
         }
         let plausible = |t: &Theta| {
             crate::assess::trust::check_theta(t, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
@@ -512,21 +509,27 @@ pub(crate) fn next_drive_of(
     n
 }
 
+/// Whether EIV's batch Gauss-Newton start estimated parameter `i`: free,
+/// not held by the start, observable there, with a covariance row.
+fn start_estimated(d: &EivDetail, free: ParamSet, i: usize) -> bool {
+    let start = &d.identification;
+    Param::from_index(i).is_some_and(|p| {
+        free.contains(p) && !d.start_held.contains(&p) && !start.observability.unobservable.contains(p)
+    }) && start.covariance[i][i] > 0.0
+}
+
 /// Raises EIV's within-drive σ `w` to its batch Gauss-Newton start's
 /// cluster-robust σ where that is larger (`crate::pooling`, `σ_within`),
 /// for the parameters both estimated; returns the raised values (zeros
 /// elsewhere). Nothing without a cluster-robust σ (too few clusters): the
 /// start's model σ assumes independent residuals and bounds nothing.
-fn start_robust_floor(d: &EivDetail, w: &mut [Option<f64>; 4]) -> [f64; 4] {
+fn start_robust_floor(d: &EivDetail, free: ParamSet, w: &mut [Option<f64>; 4]) -> [f64; 4] {
     let mut raised = [0.0; 4];
-    let start = &d.identification;
-    let Some(robust) = &start.robust else { return raised };
+    let Some(robust) = &d.identification.robust else { return raised };
     for (i, w) in w.iter_mut().enumerate() {
-        let estimated = Param::from_index(i)
-            .is_some_and(|p| !d.start_held.contains(&p) && !start.observability.unobservable.contains(p));
         let r = robust.covariance[i][i];
         if let Some(s) = w {
-            if estimated && start.covariance[i][i] > 0.0 && r.is_finite() && r > *s * *s {
+            if start_estimated(d, free, i) && r.is_finite() && r > *s * *s {
                 *s = r.sqrt();
                 raised[i] = *s;
             }
