@@ -5,11 +5,11 @@
 //! time, to get the sensitivity s_j = ∂θ̂/∂η_j by central differences, and
 //! reports the propagated variance Σ_j s_j² σ²(η̂_j) next to the reported σ.
 //! Coverage of the truth by θ̂ ± 1.96 σ is printed for both. The library's
-//! η term (`ResearchOptions::noise_estimate_in_covariance`, on by default)
+//! η term (`ResearchOptions::noise_estimate_term`, on by default)
 //! computes the same by the implicit function theorem; the line
 //! "library σ_η-term/σ_refit-term" compares the two.
 
-use odocal::eiv::{estimate, EivInput, EivOptions, ResearchOptions};
+use odocal::eiv::{estimate, EivInput, EivOptions, NoiseEstimateTerm, ResearchOptions};
 use odocal_lab::{batch_gn_all, simulate_preset, Args, Res, PARAMETERS};
 
 const USAGE: &str = "eiv_eta_propagation [--km 12] [--seeds 10] [--presets paper,high] [--h 0.05] [--refits 1]
@@ -47,7 +47,7 @@ fn run() -> Res<()> {
             });
             // The re-fits need only θ.
             let opts = EivOptions {
-                research: ResearchOptions { noise_estimate_in_covariance: false, ..Default::default() },
+                research: ResearchOptions { noise_estimate_term: NoiseEstimateTerm::Omitted, ..Default::default() },
                 ..EivOptions::default()
             };
             let th = <[_; 4]>::from(r.theta);

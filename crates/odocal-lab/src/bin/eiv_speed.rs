@@ -15,13 +15,13 @@
 //! two with quantisation as process noise (`eiv-fixed-process`,
 //! `eiv-estimated-process`: two filter states fewer),
 //! `eiv-estimated-no-eta-cov` (`eiv-estimated` without the η term of θ's
-//! covariance, `ResearchOptions::noise_estimate_in_covariance`), and the
+//! covariance, `ResearchOptions::noise_estimate_term`), and the
 //! default method with its bootstrap bias correction, `eiv-corrected-4`
 //! (B = 4, the default) and `eiv-corrected-10` (`--correct-bias 10`).
 
 use std::time::Instant;
 
-use odocal::eiv::{EivOptions, QuantisationModel, ResearchOptions};
+use odocal::eiv::{EivOptions, NoiseEstimateTerm, QuantisationModel, ResearchOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
 use odocal::{CorrectBias, EivMethodOptions};
@@ -42,7 +42,7 @@ fn methods() -> Res<Vec<(&'static str, Method)>> {
     let counting = EivOptions::default().quantisation;
     let process = QuantisationModel::ProcessNoise;
     let no_eta_cov = EivOptions {
-        research: ResearchOptions { noise_estimate_in_covariance: false, ..Default::default() },
+        research: ResearchOptions { noise_estimate_term: NoiseEstimateTerm::Omitted, ..Default::default() },
         ..Default::default()
     };
     let corrected = |replicates: usize| {

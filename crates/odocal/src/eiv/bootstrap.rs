@@ -34,7 +34,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::estimate::one_step;
-use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, InnovationNull, NoiseModel, ResearchOptions};
+use super::{
+    estimate, BiasCorrection, EivInput, EivOptions, EivReport, InnovationNull, NoiseEstimateTerm, NoiseModel,
+    ResearchOptions,
+};
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
 
@@ -261,7 +264,7 @@ research_pub! {
             free: report.free,
             fix_unobservable: false,
             research: ResearchOptions {
-                noise_estimate_in_covariance: false,
+                noise_estimate_term: NoiseEstimateTerm::Omitted,
                 innovation_null: InnovationNull::FittedModel,
                 ..resolved.research.clone()
             },

@@ -1,6 +1,6 @@
 //! θ's covariance beyond H_θ⁻¹: the noise-estimate term, the block inflation, the joint Fisher inverse.
 
-use nalgebra::{DMatrix, DVector, Matrix4};
+use nalgebra::{DMatrix, DVector, Matrix4, Vector4};
 
 use super::filter::{self, Mode, WindowSums, NETA};
 use super::problem::Problem;
@@ -9,13 +9,13 @@ use crate::error::Result;
 use crate::model::Theta;
 
 /// Step in η of the forward difference of the θ-score
-/// (`ResearchOptions::noise_estimate_in_covariance`): 1e-4, i.e. a 0.01 %
+/// ([`NoiseEstimateTerm::Observed`](super::NoiseEstimateTerm::Observed)): 1e-4, i.e. a 0.01 %
 /// change of the source's variance. The score is smooth in η (one-sided
 /// error ≈ h/2 relative); its sums have ≥ 10 significant digits to spare.
 pub(crate) const ETA_SENSITIVITY_STEP: f64 = 1e-4;
 
 /// The covariance that estimating η adds to θ̂: `A Σ_η Aᵀ` with
-/// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`ResearchOptions::noise_estimate_in_covariance`](super::ResearchOptions::noise_estimate_in_covariance);
+/// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`NoiseEstimateTerm::Observed`](super::NoiseEstimateTerm::Observed);
 /// J = ∂g_θ/∂θ, observed), and `A` itself (`[parameter][source]`, zero
 /// columns for the fixed η). `sums` is the evaluation at (θ̂, η̂) (with η
 /// derivatives), `cov` = `H_θ⁻¹` over the free θ (zero rows for the fixed
@@ -35,15 +35,10 @@ pub(super) fn noise_estimate_covariance(
     follows: bool,
     mixed_partials_by_symmetry: bool,
 ) -> Result<(Matrix4<f64>, [[f64; 6]; 4])> {
-    let mut sens = [[0.0; 6]; 4];
     let idx: Vec<usize> = (0..NETA).filter(|j| eta_free[*j]).collect();
-    let p = idx.len();
-    let info = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])]);
-    let ridge = 1e-12 * (0..p).map(|i| info[(i, i)]).fold(0.0f64, f64::max);
-    let Some(chol) = (info + DMatrix::identity(p, p) * ridge).cholesky() else {
-        return Ok((Matrix4::zeros(), sens));
+    let Some(cov_eta) = eta_covariance(sums, &idx) else {
+        return Ok((Matrix4::zeros(), [[0.0; 6]; 4]));
     };
-    let cov_eta = chol.inverse();
     let g0 = theta_score(sums, follows);
     let h = ETA_SENSITIVITY_STEP;
     // The Jacobian of the θ-score, J = ∂g_θ/∂θ: observed (forward
@@ -110,7 +105,7 @@ pub(super) fn noise_estimate_covariance(
     }
     let jinv = embedded_inverse(jac, &fidx).unwrap_or(*cov);
     // ∂g_θ/∂η_j (4-vector) per free η.
-    let dg_deta: Vec<nalgebra::Vector4<f64>> = if by_symmetry {
+    let dg_deta: Vec<Vector4<f64>> = if by_symmetry {
         idx.iter()
             .map(|&j| {
                 let mut dg = sums.grad_jacobian_eta[j];
@@ -123,8 +118,29 @@ pub(super) fn noise_estimate_covariance(
     } else {
         ev_eta.iter().map(|ev| (theta_score(&ev.total, follows) - g0) / h).collect()
     };
-    // A = −J⁻¹ ∂g_θ/∂η, 4 × p.
-    let mut a = DMatrix::zeros(4, p);
+    Ok(term_of(&jinv, &dg_deta, &idx, &cov_eta))
+}
+
+/// η's covariance over the estimated scales `idx`: the inverse of their
+/// information (with a 1e-12 relative ridge); None when that is singular.
+fn eta_covariance(sums: &WindowSums, idx: &[usize]) -> Option<DMatrix<f64>> {
+    let p = idx.len();
+    let info = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])]);
+    let ridge = 1e-12 * (0..p).map(|i| info[(i, i)]).fold(0.0f64, f64::max);
+    Some((info + DMatrix::identity(p, p) * ridge).cholesky()?.inverse())
+}
+
+/// `A Σ_η Aᵀ` and `A` (`[parameter][source]`, zero columns for the fixed
+/// η) with `A = −J⁻¹ ∂g_θ/∂η`: `jinv` is J⁻¹, `dg_deta` one `∂g_θ/∂η_j` per
+/// estimated scale of `idx`, `cov_eta` their covariance.
+fn term_of(
+    jinv: &Matrix4<f64>,
+    dg_deta: &[Vector4<f64>],
+    idx: &[usize],
+    cov_eta: &DMatrix<f64>,
+) -> (Matrix4<f64>, [[f64; 6]; 4]) {
+    let mut sens = [[0.0; 6]; 4];
+    let mut a = DMatrix::zeros(4, idx.len());
     for (c, (&j, dg)) in idx.iter().zip(dg_deta).enumerate() {
         let col = -(jinv * dg);
         for i in 0..4 {
@@ -133,7 +149,7 @@ pub(super) fn noise_estimate_covariance(
         }
     }
     let out = &a * cov_eta * a.transpose();
-    Ok((Matrix4::from_fn(|i, k| out[(i, k)]), sens))
+    (Matrix4::from_fn(|i, k| out[(i, k)]), sens)
 }
 
 /// The inverse of `jac` (over the parameters `fidx`) embedded in 4×4;

@@ -14,8 +14,8 @@ use super::scoring::scoring_pass;
 use super::steps::{at_lower_clamp, at_upper_clamp, observability_of, reentering_sources, theta_step};
 use super::{
     apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
-    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, NoiseSource, PassReport,
-    PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
+    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseEstimateTerm, NoiseModel, NoiseSource,
+    PassReport, PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
 };
 use crate::error::{Error, Result};
 use crate::model::param::Param;
@@ -524,8 +524,9 @@ fn uncertainty(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Uncer
         CovarianceEstimate::LargerOfModelAndBlock => inflate_to_block(&cov, &ev.total.blocks),
     };
     let eta_free: [bool; 6] = std::array::from_fn(|j| !opts.fix_noise && fit.eta_sigma[j] > 0.0);
-    let (noise_cov, theta_eta_sensitivity) =
-        if opts.research.noise_estimate_in_covariance && eta_free.iter().any(|f| *f) {
+    let any_eta = eta_free.iter().any(|f| *f);
+    let (noise_cov, theta_eta_sensitivity) = match opts.research.noise_estimate_term {
+        NoiseEstimateTerm::Observed if any_eta => {
             let theta_ref = fit.theta_reference();
             let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
             let by_symmetry = prob.mixed_partials_by_symmetry();
@@ -540,9 +541,9 @@ fn uncertainty(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Uncer
                 follows,
                 by_symmetry,
             )?
-        } else {
-            (Matrix4::zeros(), [[0.0; 6]; 4])
-        };
+        }
+        _ => (Matrix4::zeros(), [[0.0; 6]; 4]),
+    };
     let sigma_noise_estimate: [f64; 4] = free_sigma(&free, |i| noise_cov[(i, i)]);
     let covariance = cov_reported + noise_cov;
     let sigma: [f64; 4] = free_sigma(&free, |i| covariance[(i, i)]);

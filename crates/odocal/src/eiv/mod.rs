@@ -272,6 +272,6 @@ research_use! {
     modelling::{
         BiasCorrection, FirstOrderBias, InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
     },
-    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
+    options::{CovarianceEstimate, CovarianceMode, NoiseEstimateTerm, ResearchOptions},
     report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},
 }

@@ -35,6 +35,41 @@ research_pub! {
 }
 
 research_pub! {
+    /// What estimating the noise scales η from the same drive adds to θ's
+    /// reported covariance ([`ResearchOptions::noise_estimate_term`]): `A Σ_η
+    /// Aᵀ` with `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
+    /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the inverse of
+    /// η's information over the estimated scales. `A` is
+    /// [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity),
+    /// the added σ [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate).
+    /// No effect with [`EivOptions::fix_noise`](crate::eiv::EivOptions::fix_noise).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum NoiseEstimateTerm {
+        /// No term: θ's covariance at the fitted η.
+        Omitted,
+        /// Observed derivatives: forward differences (1 % of σ) in θ of exact
+        /// filter derivatives: J's columns of t_r and d of the θ-score
+        /// (those of c_e and c_d are the scoring metric `H_θ`'s), `∂g_θ/∂η`
+        /// of the η-gradient of the profile cost (the mixed partials are
+        /// symmetric; the FilterShare log-Jacobian weights' own
+        /// η-dependence is summed exactly by the filter): one more filter
+        /// pass per free parameter, with the η derivatives, and for t_r and
+        /// d the θ derivatives too, instead of a second-order sensitivity
+        /// recursion through the filter. With the smoothed-share weights or
+        /// the covariance held, `∂g_θ/∂η` comes from one more pass per
+        /// estimated scale, displaced by 1e-4 in η (`ETA_SENSITIVITY_STEP`
+        /// of the module `eiv::covariance`), and only t_r and d are
+        /// displaced in θ. On the `high` preset t_r moves by ≈ 7–15 % per
+        /// unit of the heading white-noise scale η_5, whose own σ there is
+        /// 0.04–0.12, so the σ at a fixed η understates t_r's by up to
+        /// 1.8×. Its four passes cost about a sixth of the default
+        /// method's instructions (crates/odocal-lab/PERFORMANCE.md).
+        Observed,
+    }
+}
+
+research_pub! {
     /// The covariance of θ reported by [`estimate`](fn@crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
     /// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
     #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -223,34 +258,11 @@ macro_rules! research_options {
             /// fits, whose warnings are not read, use
             /// [`InnovationNull::FittedModel`] (no extra filter pass).
             $vis innovation_null: InnovationNull,
-            /// Add to θ's reported covariance what estimating the noise
-            /// scales η from the same drive adds to it: `A Σ_η Aᵀ` with
-            /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
-            /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the
-            /// inverse of η's information over the estimated scales. Both
-            /// derivatives are forward differences (1 % of σ) in θ of exact
-            /// filter derivatives: J's columns of t_r and d of the θ-score
-            /// (those of c_e and c_d are the scoring metric `H_θ`'s),
-            /// `∂g_θ/∂η` of the η-gradient of the profile cost (the mixed
-            /// partials are symmetric; the FilterShare log-Jacobian weights'
-            /// own η-dependence is summed exactly by the filter): one more
-            /// filter pass per free parameter, with the η derivatives, and
-            /// for t_r and d the θ derivatives too, instead of a second-order
-            /// sensitivity recursion through the filter. With the
-            /// smoothed-share weights or the covariance held, `∂g_θ/∂η`
-            /// comes from one more pass per estimated scale, displaced by
-            /// 1e-4 in η (`ETA_SENSITIVITY_STEP` of the module `eiv::covariance`),
-            /// and only t_r and d are displaced in θ. `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity),
-            /// the added σ [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate).
-            /// No effect with [`EivOptions::fix_noise`].
-            ///
-            /// Why: on the `high` preset t_r moves by ≈ 7–15 % per unit of
-            /// the heading white-noise scale η_5, whose own σ there is
-            /// 0.04–0.12, so the σ at a fixed η understates t_r's by up to
-            /// 1.8×. It costs about a quarter of the fit's time
-            /// (crates/odocal-lab/PERFORMANCE.md). Default true; the bootstrap's replicate
-            /// fits, which use only θ, turn it off.
-            $vis noise_estimate_in_covariance: bool,
+            /// What estimating the noise scales η from the same drive adds to
+            /// θ's reported covariance ([`NoiseEstimateTerm`]). Default
+            /// [`NoiseEstimateTerm::Observed`]; the bootstrap's replicate fits,
+            /// which use only θ, leave it out.
+            $vis noise_estimate_term: NoiseEstimateTerm,
             /// How the filter models the error of the measured sideslip β.
             /// Default [`SideslipNoise::GaussMarkovState`] (see its docs).
             $vis sideslip_noise: SideslipNoise,
@@ -451,7 +463,7 @@ impl Default for ResearchOptions {
             covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
             eta_secant_damping: true,
             innovation_null: InnovationNull::FloorsAsRegularisation,
-            noise_estimate_in_covariance: true,
+            noise_estimate_term: NoiseEstimateTerm::Observed,
             sideslip_noise: SideslipNoise::GaussMarkovState,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             input_jacobian: InputJacobian::FilterShare,

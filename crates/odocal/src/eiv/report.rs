@@ -305,7 +305,7 @@ research_pub! {
         /// θ's covariance at the estimate (zero rows for fixed parameters):
         /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
         /// (`ResearchOptions::covariance_estimate`), plus what estimating η adds
-        /// (`ResearchOptions::noise_estimate_in_covariance`).
+        /// (`ResearchOptions::noise_estimate_term`).
         pub covariance: [[f64; 4]; 4],
         /// Standard deviations `sqrt(diag covariance)`.
         pub sigma: [f64; 4],
@@ -331,13 +331,13 @@ research_pub! {
         /// sandwich, which measures the scores' actual spread.
         pub sigma_fisher: [f64; 4],
         /// The part of θ's σ that estimating η from the drive adds
-        /// (`ResearchOptions::noise_estimate_in_covariance`): `sqrt(diag A Σ_η Aᵀ)`.
+        /// (`ResearchOptions::noise_estimate_term`): `sqrt(diag A Σ_η Aᵀ)`.
         /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
         /// that option is on; 0 with a fixed noise model or the option off.
         #[serde(default)]
         pub sigma_noise_estimate: [f64; 4],
         /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
-        /// unit of η; `ResearchOptions::noise_estimate_in_covariance`): how far θ̂
+        /// unit of η; `ResearchOptions::noise_estimate_term`): how far θ̂
         /// moves when a source's variance is e-fold. Zero for sources not
         /// estimated, with a fixed noise model or with the option off.
         #[serde(default)]

@@ -99,7 +99,7 @@ fn recorded_base_options() -> EivOptions {
             eta_secant_damping: false,
             innovation_null: InnovationNull::FittedModel,
             covariance_estimate: CovarianceEstimate::Model,
-            noise_estimate_in_covariance: false,
+            noise_estimate_term: NoiseEstimateTerm::Omitted,
             sideslip_noise: SideslipNoise::WhiteEquivalent,
             c_d_covariance_derivative: true,
             a_y_floor_from_readings: false,

@@ -156,7 +156,7 @@ fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
     let opts = EivOptions::default();
     let r = estimate(&input, &gn, &opts).expect("eiv");
     let off_opts = EivOptions {
-        research: ResearchOptions { noise_estimate_in_covariance: false, ..Default::default() },
+        research: ResearchOptions { noise_estimate_term: NoiseEstimateTerm::Omitted, ..Default::default() },
         ..opts.clone()
     };
     let off = estimate(&input, &gn, &off_opts).expect("eiv");
