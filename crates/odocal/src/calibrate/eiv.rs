@@ -105,8 +105,8 @@
 //! ## Uncertainty and observability
 //! The covariance is the filter's at the estimate: per parameter the larger
 //! of `H_θ⁻¹` and a block sandwich (`ResearchOptions::covariance_estimate`),
-//! plus what estimating the noise scales from the same drive adds
-//! (`ResearchOptions::noise_estimate_term`). The reported
+//! at the fitted noise scales (what estimating them from the same drive
+//! adds is left out, `ResearchOptions::noise_estimate_term`). The reported
 //! observability is the filter's own, with the numbers that decided it:
 //! `sigma_over_resolution`, each parameter's σ over its resolution from
 //! `H_θ` at the filter's start (the start's θ and the starting noise

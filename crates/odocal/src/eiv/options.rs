@@ -46,7 +46,7 @@ research_pub! {
     #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
     #[serde(rename_all = "snake_case")]
     enum NoiseEstimateTerm {
-        /// No term: θ's covariance at the fitted η.
+        /// No term: θ's covariance at the fitted η. The default.
         Omitted,
         /// Observed derivatives: forward differences (1 % of σ) in θ of exact
         /// filter derivatives: J's columns of t_r and d of the θ-score
@@ -260,8 +260,11 @@ macro_rules! research_options {
             $vis innovation_null: InnovationNull,
             /// What estimating the noise scales η from the same drive adds to
             /// θ's reported covariance ([`NoiseEstimateTerm`]). Default
-            /// [`NoiseEstimateTerm::Observed`]; the bootstrap's replicate fits,
-            /// which use only θ, leave it out.
+            /// [`NoiseEstimateTerm::Omitted`]: the term takes four more filter
+            /// passes, about a sixth of the default method's instructions, and
+            /// the σ for the next drive, which stands for a result, does not
+            /// need it (docs/validation.md, "EIV's σ at the fitted noise
+            /// scales").
             $vis noise_estimate_term: NoiseEstimateTerm,
             /// How the filter models the error of the measured sideslip β.
             /// Default [`SideslipNoise::GaussMarkovState`] (see its docs).
@@ -463,7 +466,7 @@ impl Default for ResearchOptions {
             covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
             eta_secant_damping: true,
             innovation_null: InnovationNull::FloorsAsRegularisation,
-            noise_estimate_term: NoiseEstimateTerm::Observed,
+            noise_estimate_term: NoiseEstimateTerm::Omitted,
             sideslip_noise: SideslipNoise::GaussMarkovState,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             input_jacobian: InputJacobian::FilterShare,

@@ -332,14 +332,16 @@ research_pub! {
         pub sigma_fisher: [f64; 4],
         /// The part of θ's σ that estimating η from the drive adds
         /// (`ResearchOptions::noise_estimate_term`): `sqrt(diag A Σ_η Aᵀ)`.
-        /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
-        /// that option is on; 0 with a fixed noise model or the option off.
+        /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] with
+        /// the observed term; 0 by default (the term left out) and with a
+        /// fixed noise model.
         #[serde(default)]
         pub sigma_noise_estimate: [f64; 4],
         /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
         /// unit of η; `ResearchOptions::noise_estimate_term`): how far θ̂
         /// moves when a source's variance is e-fold. Zero for sources not
-        /// estimated, with a fixed noise model or with the option off.
+        /// estimated, with a fixed noise model and by default (the term left
+        /// out).
         #[serde(default)]
         pub theta_eta_sensitivity: [[f64; 6]; 4],
         /// `∂η̂_j/∂θ_i` at the estimate (`[source][parameter]`, per unit of θ in

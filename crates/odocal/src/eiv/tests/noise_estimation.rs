@@ -153,7 +153,10 @@ fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
     let out = simulate(&SimOptions { length_km: 4.0, noise, ..SimOptions::paper(2) }).expect("sim");
     let input = input_of(&out.drive);
     let gn = batch_gn_all(&out.drive);
-    let opts = EivOptions::default();
+    let opts = EivOptions {
+        research: ResearchOptions { noise_estimate_term: NoiseEstimateTerm::Observed, ..Default::default() },
+        ..EivOptions::default()
+    };
     let r = estimate(&input, &gn, &opts).expect("eiv");
     let off_opts = EivOptions {
         research: ResearchOptions { noise_estimate_term: NoiseEstimateTerm::Omitted, ..Default::default() },

@@ -24,7 +24,11 @@ fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
     let truth = out.sidecar.theta_true;
     let input = input_of(&out.drive);
     let start = Theta { c_e: 1.96, c_d: -0.001, t_r: 1.55, d: 0.0005 };
-    let opts = EivOptions::default();
+    // With the observed noise-estimate term, whose held scales must add nothing (θ is the default's).
+    let opts = EivOptions {
+        research: ResearchOptions { noise_estimate_term: NoiseEstimateTerm::Observed, ..Default::default() },
+        ..EivOptions::default()
+    };
     let r = estimate(&input, &start, &opts).expect("eiv");
     let (e, t) = (r.theta.to_array(), truth.to_array());
     for i in 0..4 {
