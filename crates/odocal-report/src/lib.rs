@@ -199,8 +199,8 @@ pub struct ReportInput<'a> {
     /// Warnings, one per line.
     pub warnings: Vec<String>,
     /// The method's own account of the fit, one line each (for EIV: the
-    /// filter, the noise model at the start and as estimated, how far the
-    /// estimated noise levels widened θ's σ, and whether the result is the
+    /// filter, the noise model at the start and as estimated, the bias
+    /// correction, and whether the result is the
     /// EIV estimate or the batch G-N fallback). Shown as text under the
     /// parameter table; the section is left out when empty.
     pub method_details: Vec<String>,

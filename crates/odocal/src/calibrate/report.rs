@@ -606,7 +606,7 @@ research_pub! {
         BatchSpread,
         /// The model covariance ([`CalibrationReport::covariance`]): EIV's
         /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
-        /// sandwich, plus what estimating the noise levels adds;
+        /// sandwich, at the fitted noise levels;
         /// `crate::eiv::EivReport::covariance`) (after an EIV fallback the start's cluster-robust σ stands,
         /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
         /// batch-spread σ could not be computed (then it understates the
