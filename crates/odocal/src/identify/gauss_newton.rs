@@ -224,7 +224,11 @@ pub(crate) fn clusters(starts: &[(usize, usize)], block_steps: usize) -> (Vec<us
 /// ```
 ///
 /// with the clusters of [`clusters`] (`G` of them; Δ̄ the mean of the
-/// Δ_c). Unlike the model covariance it does not assume independent,
+/// Δ_c), each variance raised where neighbouring clusters of a drive
+/// correlate ([`widened_by_neighbours`]: slow wheel-scale variation, with a
+/// correlation time that is not short against the 32.5 s clusters, makes
+/// them move together, and the jackknife, which takes clusters as
+/// independent, then understates the spread). Unlike the model covariance it does not assume independent,
 /// equally scaled residuals: a segment's residuals integrate the same
 /// input noise, and overlapping segments share samples, so only sums over
 /// long stretches of the drive are close to independent. Unlike the
@@ -264,9 +268,15 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
     let inv = a.clone().try_inverse()?;
     let deleted: Option<Vec<DVector<f64>>> =
         scores.iter().zip(&information).map(|(score, h)| (&a - h).try_inverse().map(|m| m * score)).collect();
+    // Clusters whose successor is the next cluster of the same drive.
+    let mut drive_of = vec![usize::MAX; g];
+    for (s, seg) in segments.iter().enumerate() {
+        drive_of[id[s]] = seg.drive_start;
+    }
+    let neighbours: Vec<bool> = (0..g).map(|c| c + 1 < g && drive_of[c] == drive_of[c + 1]).collect();
     let v = match deleted {
-        Some(deltas) => spread(&deltas) * ((g - 1) as f64 / g as f64),
-        None => &inv * spread(&scores) * (g as f64 / (g - 1) as f64) * &inv,
+        Some(deltas) => widened_by_neighbours(&deltas, &neighbours) * ((g - 1) as f64 / g as f64),
+        None => &inv * widened_by_neighbours(&scores, &neighbours) * (g as f64 / (g - 1) as f64) * &inv,
     };
     let mut cov = SMatrix::<f64, N, N>::zeros();
     for (i, &fi) in free.iter().enumerate() {
@@ -276,6 +286,36 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
         }
     }
     Some((cov, g))
+}
+
+/// [`spread`] of `vs` with each diagonal entry raised, where that is
+/// larger, to the spread plus the cross products of neighbouring entries
+/// (`neighbours[c]`: `vs[c]` and `vs[c + 1]` are neighbours), the
+/// correlation of neighbouring clusters, `S D` → `D S D` with
+/// `D = diag(max(1, √(diag(S + C) / diag S)))`. Slow wheel-scale variation
+/// correlates the clusters next to each other; neighbours of one drive
+/// follow each other in time. Only widening: the cross products of a few
+/// dozen clusters are noisy.
+fn widened_by_neighbours(vs: &[DVector<f64>], neighbours: &[bool]) -> DMatrix<f64> {
+    let s = spread(vs);
+    let p = s.nrows();
+    let mean = vs.iter().fold(DVector::zeros(p), |acc, v| acc + v) / vs.len().max(1) as f64;
+    let mut cross = DMatrix::<f64>::zeros(p, p);
+    for c in (0..vs.len().saturating_sub(1)).filter(|c| neighbours[*c]) {
+        let (x, y) = (&vs[c] - &mean, &vs[c + 1] - &mean);
+        cross += &x * y.transpose() + &y * x.transpose();
+    }
+    let f: Vec<f64> = (0..p)
+        .map(|i| {
+            let (v, w) = (s[(i, i)], s[(i, i)] + cross[(i, i)]);
+            if v > 0.0 && w.is_finite() && w > v {
+                (w / v).sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    DMatrix::from_fn(p, p, |i, j| s[(i, j)] * f[i] * f[j])
 }
 
 /// `Σ (v − v̄)(v − v̄)ᵀ` over `vs` (all of one length).
@@ -366,6 +406,25 @@ mod tests {
         for (x, y) in <[f64; 4]>::from(again).iter().zip(<[f64; 4]>::from(fit.theta)) {
             assert!((x - y).abs() <= 1e-9 * y.abs().max(1e-3), "{x} against {y}");
         }
+    }
+
+    /// Neighbours that move together widen the spread by `√((S + C)/S)`;
+    /// neighbours that alternate, and entries that are not neighbours (other
+    /// drives), leave it as it is.
+    #[test]
+    #[allow(clippy::float_cmp)] // unchanged entries are the spread's own bits
+    fn neighbouring_clusters_that_correlate_widen_the_spread() {
+        let vs = |x: &[f64]| x.iter().map(|v| DVector::from_vec(vec![*v, 1.0 - *v])).collect::<Vec<_>>();
+        let smooth = vs(&[1.0, 2.0, 3.0, 4.0]);
+        let s = spread(&smooth);
+        // Deviations −1.5, −0.5, 0.5, 1.5: S = 5, C = 2 (0.75 − 0.25 + 0.75) = 2.5.
+        let w = widened_by_neighbours(&smooth, &[true, true, true, false]);
+        assert!((w[(0, 0)] / s[(0, 0)] - 1.5).abs() < 1e-12, "{w}");
+        assert!((w[(1, 1)] / s[(1, 1)] - 1.5).abs() < 1e-12, "{w}");
+        assert!((w[(0, 1)] / s[(0, 1)] - 1.5).abs() < 1e-12, "correlations kept: {w}");
+        assert_eq!(widened_by_neighbours(&smooth, &[false; 4]), s, "no neighbours");
+        let alternating = vs(&[1.0, 3.0, 1.0, 3.0]);
+        assert_eq!(widened_by_neighbours(&alternating, &[true, true, true, false]), spread(&alternating));
     }
 
     #[test]

