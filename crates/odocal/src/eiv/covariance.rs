@@ -179,15 +179,7 @@ pub(super) fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores)
         return *cov;
     };
     let sandwich = cov * meat * cov;
-    let f: [f64; 4] = std::array::from_fn(|i| {
-        let (m, b) = (cov[(i, i)], sandwich[(i, i)]);
-        if m > 0.0 && b.is_finite() && b > m {
-            (b / m).sqrt()
-        } else {
-            1.0
-        }
-    });
-    Matrix4::from_fn(|i, j| cov[(i, j)] * f[i] * f[j])
+    crate::identify::raise_variances(cov, |i| sandwich[(i, i)])
 }
 
 /// The θ block of the inverse of the joint Fisher information of the free

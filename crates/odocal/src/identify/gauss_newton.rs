@@ -299,29 +299,25 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
 fn widened_by_neighbours(vs: &[DVector<f64>], neighbours: &[bool]) -> DMatrix<f64> {
     let s = spread(vs);
     let p = s.nrows();
-    let mean = vs.iter().fold(DVector::zeros(p), |acc, v| acc + v) / vs.len().max(1) as f64;
+    let mean = mean_of(vs);
     let mut cross = DMatrix::<f64>::zeros(p, p);
     for c in (0..vs.len().saturating_sub(1)).filter(|c| neighbours[*c]) {
         let (x, y) = (&vs[c] - &mean, &vs[c + 1] - &mean);
         cross += &x * y.transpose() + &y * x.transpose();
     }
-    let f: Vec<f64> = (0..p)
-        .map(|i| {
-            let (v, w) = (s[(i, i)], s[(i, i)] + cross[(i, i)]);
-            if v > 0.0 && w.is_finite() && w > v {
-                (w / v).sqrt()
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    DMatrix::from_fn(p, p, |i, j| s[(i, j)] * f[i] * f[j])
+    super::raise_variances(&s, |i| s[(i, i)] + cross[(i, i)])
+}
+
+/// The mean v̄ of `vs` (all of one length).
+fn mean_of(vs: &[DVector<f64>]) -> DVector<f64> {
+    let p = vs.first().map_or(0, |v| v.len());
+    vs.iter().fold(DVector::zeros(p), |acc, v| acc + v) / vs.len().max(1) as f64
 }
 
 /// `Σ (v − v̄)(v − v̄)ᵀ` over `vs` (all of one length).
 fn spread(vs: &[DVector<f64>]) -> DMatrix<f64> {
-    let p = vs.first().map_or(0, |v| v.len());
-    let mean = vs.iter().fold(DVector::zeros(p), |acc, v| acc + v) / vs.len().max(1) as f64;
+    let mean = mean_of(vs);
+    let p = mean.len();
     vs.iter().fold(DMatrix::zeros(p, p), |acc, v| {
         let c = v - &mean;
         acc + &c * c.transpose()

@@ -29,7 +29,10 @@
 //! G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
 
-use nalgebra::{Matrix3, Matrix3x4, SMatrix, SVector, SymmetricEigen, Vector3, Vector4};
+use nalgebra::allocator::Allocator;
+use nalgebra::{
+    DefaultAllocator, Dim, Matrix3, Matrix3x4, OMatrix, SMatrix, SVector, SymmetricEigen, Vector3, Vector4,
+};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -752,6 +755,28 @@ pub(crate) fn gauss_newton_step_drives(
     let problem = ThetaProblem { weights: opts.weights, opts };
     let x = gauss_newton::one_step(&problem, segments, &theta0.to_vector(), &opts.free.indices())?;
     Some(Theta::from_vector(&x))
+}
+
+/// `D m D` with `D = diag(max(1, √(wider(i) / m_ii)))`: each variance of
+/// the covariance `m` raised to `wider(i)` where that is larger (and finite,
+/// and `m_ii` positive), its correlations kept. How a covariance takes a
+/// second, wider estimate of its variances: EIV's block sandwich, batch
+/// G-N's correlated neighbouring clusters.
+pub(crate) fn raise_variances<D: Dim>(m: &OMatrix<f64, D, D>, wider: impl Fn(usize) -> f64) -> OMatrix<f64, D, D>
+where
+    DefaultAllocator: Allocator<D, D>,
+{
+    let f: Vec<f64> = (0..m.nrows())
+        .map(|i| {
+            let (v, w) = (m[(i, i)], wider(i));
+            if v > 0.0 && w.is_finite() && w > v {
+                (w / v).sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    m.map_with_location(|i, j, x| x * f[i] * f[j])
 }
 
 /// The top-left 4×4 (θ) block of an N×N matrix as arrays.
