@@ -704,7 +704,7 @@ proptest! {
 }
 
 /// The damaged bag on which mcap 0.26's reader panicked (an overflow in an
-/// uncompressed chunk, debug builds): now an error, not a panic. Found by
+/// uncompressed chunk, debug builds) gives an error, not a panic. Found by
 /// `damaged_bag_files_never_panic` (comp 0, no cut, byte at 0.1423 set to 3).
 #[test]
 fn bag_that_made_the_mcap_reader_overflow_gives_an_error() {
