@@ -149,6 +149,40 @@ pub fn dead_reckoning(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> (
     (sum / seg.steps() as f64, out)
 }
 
+/// Lags of neighbouring validation segments whose errors
+/// [`difference_sigma`] counts as correlated: the default validation
+/// segments overlap by half (1300 steps every 650), so a segment shares
+/// samples with its neighbour, and slow noise (wheel scale, reference
+/// drift) reaches the one after.
+const DIFFERENCE_LAGS: usize = 2;
+
+/// The standard error of `Ē_p(a) − Ē_p(b)`, two θ's E_p,s on the same
+/// validation segments in drive order: the spread of the per-segment
+/// differences, with the cross products of segments up to
+/// [`DIFFERENCE_LAGS`] apart (they overlap and share slow noise). The
+/// cross products only widen it: with a few dozen segments their sum is
+/// noisy, and a negative sum would claim a precision the data do not
+/// show. `None` for fewer than three segments or lists of unequal length.
+///
+/// The segments' errors are not independent draws, so this is the
+/// comparison's noise as the drive shows it, not an exact distribution;
+/// the verdict uses it as a scale ([`crate::TrustOptions::worse_than_initial_sigmas`]).
+pub(crate) fn difference_sigma(a: &[f64], b: &[f64]) -> Option<f64> {
+    let n = a.len();
+    if n < 3 || b.len() != n {
+        return None;
+    }
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let mean = d.iter().sum::<f64>() / n as f64;
+    let r: Vec<f64> = d.iter().map(|x| x - mean).collect();
+    let own: f64 = r.iter().map(|x| x * x).sum();
+    let cross: f64 =
+        (1..=DIFFERENCE_LAGS.min(n - 1)).map(|l| r.iter().zip(&r[l..]).map(|(x, y)| x * y).sum::<f64>()).sum();
+    let sum = own + 2.0 * cross.max(0.0);
+    let sigma = (sum / (n as f64 * (n - 1) as f64)).sqrt();
+    sigma.is_finite().then_some(sigma)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -168,5 +202,33 @@ mod tests {
             let with = segment_position_error_with(&data, &theta, &Extrinsics::ZERO);
             assert_eq!(plain.to_bits(), with.to_bits());
         }
+    }
+
+    /// Independent differences give the standard error of their mean;
+    /// differences that move together with their neighbours give a wider
+    /// one; alternating neighbours do not narrow it.
+    #[test]
+    fn the_difference_sigma_counts_correlated_neighbours_and_only_widens() {
+        let zeros = [0.0; 8];
+        // Independent: √(Σ(d − d̄)² / (n (n − 1))).
+        let d = [1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 1.5, -1.5];
+        let plain = (d.iter().map(|x| x * x).sum::<f64>() / (8.0 * 7.0)).sqrt();
+        // Alternating signs: the lag-1 products are negative and outweigh the
+        // lag-2 ones, so nothing is added.
+        let s = difference_sigma(&d, &zeros).expect("σ");
+        assert!((s - plain).abs() < 1e-15, "{s} vs {plain}");
+        // Runs of equal values: neighbours correlate (lag-1 products 5, lag-2
+        // 2 against 8 of their own), σ grows by √(22/8).
+        let runs = [1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0];
+        let plain_runs = (runs.iter().map(|x| x * x).sum::<f64>() / (8.0 * 7.0)).sqrt();
+        let s = difference_sigma(&runs, &zeros).expect("σ");
+        assert!((s / plain_runs - (22.0f64 / 8.0).sqrt()).abs() < 1e-12, "{s} vs {plain_runs}");
+        // The difference of the two lists, whatever each list holds.
+        let b = [5.0, 3.0, 9.0, 1.0, 4.0, 4.0, 2.0, 8.0];
+        let a: Vec<f64> = b.iter().zip(&d).map(|(x, y)| x + y).collect();
+        let s = difference_sigma(&a, &b).expect("σ");
+        assert!((s - plain).abs() < 1e-12, "{s} vs {plain}");
+        assert_eq!(difference_sigma(&[1.0, 2.0], &[0.0, 0.0]), None);
+        assert_eq!(difference_sigma(&[1.0, 2.0, 3.0], &[0.0, 0.0]), None);
     }
 }

@@ -8,10 +8,28 @@ impl std::fmt::Display for VerdictReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             VerdictReason::Implausible { violation } => write!(f, "implausible result: {violation}"),
-            VerdictReason::WorseThanInitial { calibrated_m, initial_m, held_out } => write!(
+            VerdictReason::WorseThanInitial { calibrated_m, initial_m, held_out, difference_sigma_m } => {
+                write!(
+                    f,
+                    "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {} data",
+                    if *held_out { "held-out" } else { "validation" }
+                )?;
+                if let Some(s) = difference_sigma_m {
+                    write!(
+                        f,
+                        ", {:.1} × the standard error of the difference ({s:.3} m)",
+                        (calibrated_m - initial_m) / s
+                    )?;
+                }
+                write!(f, ": dead reckoning gets worse")
+            }
+            VerdictReason::NotBetterThanInitial { calibrated_m, initial_m, held_out, difference_sigma_m } => write!(
                 f,
-                "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {} data: dead reckoning gets worse",
-                if *held_out { "held-out" } else { "validation" }
+                "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {} data, by {:.1} × the standard \
+                 error of the difference ({difference_sigma_m:.3} m): within that noise these data do not show \
+                 the calibration better than θ_0 (nor worse)",
+                if *held_out { "held-out" } else { "validation" },
+                (calibrated_m - initial_m) / difference_sigma_m
             ),
             VerdictReason::Unobservable { params } => write!(f, "{params} not observable from these data"),
             VerdictReason::AtGuardBound { param, value, fraction } => {

@@ -429,6 +429,35 @@ fn every_report_has_a_verdict() {
     ));
 }
 
+/// A vehicle whose θ_0 is already right, under heavy wheel noise: on the
+/// held-out half the calibration dead-reckons a little worse than θ_0 (the
+/// truth), within the noise of the comparison. The verdict says the data
+/// do not show it better (doubtful), and does not reject it as worse.
+#[test]
+fn a_calibration_within_the_noise_of_theta0_is_doubtful_not_rejected() {
+    use crate::assess::trust::{VerdictLevel, VerdictReason};
+    let sim = simulate(&SimOptions {
+        length_km: 6.0,
+        noise: "high".parse().expect("preset"),
+        theta_true: Theta::PAPER_INITIAL,
+        ..SimOptions::paper(2)
+    })
+    .expect("sim");
+    let holdout = Holdout::SecondHalf;
+    let opts = CalibrationOptions::default();
+    let r = Calibration { holdout: Some(&holdout), ..Calibration::new(&sim.drive, &opts) }.run().expect("calibrate");
+    let (cal, init) = (r.validation.mean_position_error_m, r.initial.mean_position_error_m);
+    assert!(cal > init, "the calibration above θ_0 on the held-out half: {cal} vs {init}");
+    assert_eq!(r.verdict.level, VerdictLevel::Doubtful, "{:?}", r.verdict);
+    let Some(&VerdictReason::NotBetterThanInitial { calibrated_m, initial_m, held_out: true, difference_sigma_m }) =
+        r.verdict.reasons.first()
+    else {
+        panic!("{:?}", r.verdict)
+    };
+    assert_eq!((calibrated_m, initial_m), (cal, init));
+    assert!(difference_sigma_m > 0.0 && cal - init <= 3.0 * difference_sigma_m, "{difference_sigma_m}");
+}
+
 /// A batch G-N cut off after one step from θ_0 is still far from its
 /// optimum: the verdict says so (and names the iteration limit); with the
 /// default five iterations it converges and says nothing of it.
