@@ -458,10 +458,15 @@ fn rejected_calibration_exits_3_and_still_writes_the_report() {
     let after_table = out.split("d    mm/(m/s²)").nth(1).expect("θ table");
     let first = after_table.lines().nth(1).expect("a line after the table");
     assert_eq!(first, "  verdict: REJECTED", "{out}");
-    assert!(out.contains("on the held-out data: dead reckoning gets worse"), "{out}");
+    assert!(out.contains("on the held-out data; per segment "), "{out}");
+    assert!(out.contains("standard errors above 1: dead reckoning gets worse"), "{out}");
     let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).expect("r")).expect("json");
     assert_eq!(r["verdict"]["level"], "rejected");
-    assert_eq!(r["verdict"]["reasons"][0]["kind"], "worse_than_initial");
+    let worse = &r["verdict"]["reasons"][0];
+    assert_eq!(worse["kind"], "worse_than_initial");
+    // Every segment dead-reckons worse by a similar factor: far beyond the noise.
+    assert!(worse["segment_ratio"].as_f64().expect("ratio") > 1.5, "{worse}");
+    assert!(worse["segment_ratio_sigmas"].as_f64().expect("sigmas") > 3.0, "{worse}");
     // On its own drive the same calibration is not rejected: exit 0. It is
     // doubtful only for its σ: 3 km are too short for batch G-N's
     // cluster-robust σ.

@@ -150,37 +150,47 @@ pub fn dead_reckoning(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> (
 }
 
 /// Lags of neighbouring validation segments whose errors
-/// [`difference_sigma`] counts as correlated: the default validation
+/// [`segment_log_ratio`] counts as correlated: the default validation
 /// segments overlap by half (1300 steps every 650), so a segment shares
 /// samples with its neighbour, and slow noise (wheel scale, reference
 /// drift) reaches the one after.
-const DIFFERENCE_LAGS: usize = 2;
+const NEIGHBOUR_LAGS: usize = 2;
 
-/// The standard error of `Ē_p(a) − Ē_p(b)`, two θ's E_p,s on the same
-/// validation segments in drive order: the spread of the per-segment
-/// differences, with the cross products of segments up to
-/// [`DIFFERENCE_LAGS`] apart (they overlap and share slow noise). The
-/// cross products only widen it: with a few dozen segments their sum is
-/// noisy, and a negative sum would claim a precision the data do not
-/// show. `None` for fewer than three segments or lists of unequal length.
-///
-/// The segments' errors are not independent draws, so this is the
-/// comparison's noise as the drive shows it, not an exact distribution;
-/// the verdict uses it as a scale ([`crate::TrustOptions::worse_than_initial_sigmas`]).
-pub(crate) fn difference_sigma(a: &[f64], b: &[f64]) -> Option<f64> {
-    let n = a.len();
-    if n < 3 || b.len() != n {
+/// The mean of `x` (values along the drive) and its standard error: the
+/// spread of the values, with the cross products of values up to
+/// [`NEIGHBOUR_LAGS`] apart. The cross products only widen it: with a few
+/// dozen values their sum is noisy, and a negative sum would claim a
+/// precision the data do not show. `None` for fewer than three values.
+fn mean_and_sigma(x: &[f64]) -> Option<(f64, f64)> {
+    let n = x.len();
+    if n < 3 {
         return None;
     }
-    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
-    let mean = d.iter().sum::<f64>() / n as f64;
-    let r: Vec<f64> = d.iter().map(|x| x - mean).collect();
-    let own: f64 = r.iter().map(|x| x * x).sum();
-    let cross: f64 =
-        (1..=DIFFERENCE_LAGS.min(n - 1)).map(|l| r.iter().zip(&r[l..]).map(|(x, y)| x * y).sum::<f64>()).sum();
-    let sum = own + 2.0 * cross.max(0.0);
-    let sigma = (sum / (n as f64 * (n - 1) as f64)).sqrt();
-    sigma.is_finite().then_some(sigma)
+    let mean = x.iter().sum::<f64>() / n as f64;
+    let r: Vec<f64> = x.iter().map(|v| v - mean).collect();
+    let own: f64 = r.iter().map(|v| v * v).sum();
+    let lag = |l: usize| r.iter().zip(&r[l..]).map(|(a, b)| a * b).sum::<f64>();
+    let cross: f64 = (1..=NEIGHBOUR_LAGS.min(n - 1)).map(lag).sum();
+    let sigma = ((own + 2.0 * cross.max(0.0)) / (n as f64 * (n - 1) as f64)).sqrt();
+    (mean.is_finite() && sigma.is_finite()).then_some((mean, sigma))
+}
+
+/// How two θ's dead reckoning compares segment by segment: the mean over
+/// the validation segments of `ln(E_p,s(a) / E_p,s(b))`, `a` and `b` each
+/// θ's E_p,s on the same segments in drive order, and its standard error
+/// ([`mean_and_sigma`]). A θ that is wrong by a margin makes every segment
+/// worse by a similar factor, so the log ratio separates it from noise
+/// better than the difference of the means, whose segments' errors span a
+/// wide range (a test-track segment a metre, a highway one tens). `None`
+/// for fewer than three segments, lists of unequal length, or an error
+/// that is not positive and finite.
+pub(crate) fn segment_log_ratio(a: &[f64], b: &[f64]) -> Option<(f64, f64)> {
+    let usable = |v: &f64| v.is_finite() && *v > 0.0;
+    if a.len() != b.len() || !a.iter().chain(b).all(usable) {
+        return None;
+    }
+    let logs: Vec<f64> = a.iter().zip(b).map(|(x, y)| (x / y).ln()).collect();
+    mean_and_sigma(&logs)
 }
 
 #[cfg(test)]
@@ -204,31 +214,41 @@ mod tests {
         }
     }
 
-    /// Independent differences give the standard error of their mean;
-    /// differences that move together with their neighbours give a wider
-    /// one; alternating neighbours do not narrow it.
+    /// Independent values give the standard error of their mean; values
+    /// that move together with their neighbours a wider one; alternating
+    /// neighbours do not narrow it.
     #[test]
-    fn the_difference_sigma_counts_correlated_neighbours_and_only_widens() {
-        let zeros = [0.0; 8];
-        // Independent: √(Σ(d − d̄)² / (n (n − 1))).
+    fn the_standard_error_counts_correlated_neighbours_and_only_widens() {
+        // Independent: √(Σ(x − x̄)² / (n (n − 1))). Alternating signs: the
+        // lag-1 products (−11.25) outweigh the lag-2 ones (+7.5), nothing is added.
         let d = [1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 1.5, -1.5];
         let plain = (d.iter().map(|x| x * x).sum::<f64>() / (8.0 * 7.0)).sqrt();
-        // Alternating signs: the lag-1 products are negative and outweigh the
-        // lag-2 ones, so nothing is added.
-        let s = difference_sigma(&d, &zeros).expect("σ");
+        let (m, s) = mean_and_sigma(&d).expect("σ");
+        assert_eq!(m, 0.0);
         assert!((s - plain).abs() < 1e-15, "{s} vs {plain}");
         // Runs of equal values: neighbours correlate (lag-1 products 5, lag-2
         // 2 against 8 of their own), σ grows by √(22/8).
         let runs = [1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0];
-        let plain_runs = (runs.iter().map(|x| x * x).sum::<f64>() / (8.0 * 7.0)).sqrt();
-        let s = difference_sigma(&runs, &zeros).expect("σ");
+        let plain_runs = (8.0f64 / (8.0 * 7.0)).sqrt();
+        let (_, s) = mean_and_sigma(&runs).expect("σ");
         assert!((s / plain_runs - (22.0f64 / 8.0).sqrt()).abs() < 1e-12, "{s} vs {plain_runs}");
-        // The difference of the two lists, whatever each list holds.
-        let b = [5.0, 3.0, 9.0, 1.0, 4.0, 4.0, 2.0, 8.0];
-        let a: Vec<f64> = b.iter().zip(&d).map(|(x, y)| x + y).collect();
-        let s = difference_sigma(&a, &b).expect("σ");
-        assert!((s - plain).abs() < 1e-12, "{s} vs {plain}");
-        assert_eq!(difference_sigma(&[1.0, 2.0], &[0.0, 0.0]), None);
-        assert_eq!(difference_sigma(&[1.0, 2.0, 3.0], &[0.0, 0.0]), None);
+        assert_eq!(mean_and_sigma(&[1.0, 2.0]), None);
+    }
+
+    /// The log ratio of E_p,s: a θ twice as bad on every segment gives ln 2
+    /// with no spread; unequal lists, too few segments or an error that is
+    /// not positive give none.
+    #[test]
+    fn the_segment_log_ratio_compares_segment_by_segment() {
+        let b = [1.0, 10.0, 3.0, 40.0];
+        let a: Vec<f64> = b.iter().map(|x| 2.0 * x).collect();
+        let (m, s) = segment_log_ratio(&a, &b).expect("ratio");
+        assert!((m - 2f64.ln()).abs() < 1e-15 && s < 1e-15, "{m} {s}");
+        let (m, _) = segment_log_ratio(&b, &a).expect("ratio");
+        assert!((m + 2f64.ln()).abs() < 1e-15, "{m}");
+        assert_eq!(segment_log_ratio(&a[..3], &b), None);
+        assert_eq!(segment_log_ratio(&a[..2], &b[..2]), None);
+        assert_eq!(segment_log_ratio(&[1.0, 0.0, 2.0], &[1.0, 1.0, 1.0]), None);
+        assert_eq!(segment_log_ratio(&[1.0, f64::NAN, 2.0], &[1.0, 1.0, 1.0]), None);
     }
 }

@@ -275,14 +275,15 @@ pub struct TrustOptions {
     #[serde(default = "default_max_fallback_gap_sigmas")]
     pub max_fallback_gap_sigmas: f64,
     /// A calibrated Ē_p above θ_0's rejects the result
-    /// ([`VerdictReason::WorseThanInitial`]) when the excess is more than
-    /// this many standard errors of the difference, measured from the two
-    /// θ's errors on the same validation segments; a smaller excess makes
-    /// it doubtful ([`VerdictReason::NotBetterThanInitial`]): the
-    /// validation data then do not tell θ from θ_0. Default 3. Under heavy
-    /// wheel noise Ē_p is mostly noise: on such drives of the lab's second
-    /// simulator the true θ itself gave a higher Ē_p than θ_0 on 2 of 20
-    /// (docs/validation.md, "Worse than θ_0, or within the noise").
+    /// ([`VerdictReason::WorseThanInitial`]) when, segment by segment, the
+    /// calibrated θ's error is above θ_0's by more than this many standard
+    /// errors: the mean over the validation segments of
+    /// `ln(E_p,s(θ) / E_p,s(θ_0))` above this many of its standard errors.
+    /// Otherwise the result is doubtful
+    /// ([`VerdictReason::NotBetterThanInitial`]): the validation data then
+    /// do not tell θ from θ_0. Default 3. Under heavy wheel noise Ē_p is
+    /// mostly noise: on such drives the true θ itself can give a higher Ē_p
+    /// than θ_0 (docs/validation.md, "Worse than θ_0, or within the noise").
     #[serde(default = "default_worse_than_initial_sigmas")]
     pub worse_than_initial_sigmas: f64,
 }
@@ -379,17 +380,22 @@ pub enum VerdictReason {
         initial_m: f64,
         /// True when on held-out data.
         held_out: bool,
-        /// The standard error of `calibrated_m − initial_m` from the two θ's
-        /// errors on the same segments, m (absent where it could not be
-        /// measured: fewer than three segments).
+        /// The calibrated θ's E_p,s over θ_0's, the geometric mean over the
+        /// segments (absent where it could not be measured: fewer than three
+        /// segments, or an error of zero).
         #[serde(default, skip_serializing_if = "Option::is_none")]
-        difference_sigma_m: Option<f64>,
+        segment_ratio: Option<f64>,
+        /// Its logarithm over that logarithm's standard error (absent with
+        /// `segment_ratio`, or where that error is zero).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        segment_ratio_sigmas: Option<f64>,
     },
-    /// The calibrated Ē_p is above θ_0's, by no more than
-    /// [`TrustOptions::worse_than_initial_sigmas`] standard errors of the
-    /// difference (doubtful): on these validation data θ and θ_0 dead-reckon
-    /// alike within the noise, so they do not show that the calibration
-    /// improves on θ_0, nor that it harms.
+    /// The calibrated Ē_p is above θ_0's, but segment by segment the
+    /// calibrated θ's error is above θ_0's by no more than
+    /// [`TrustOptions::worse_than_initial_sigmas`] standard errors
+    /// (doubtful): on these validation data θ and θ_0 dead-reckon alike
+    /// within the noise, so they show neither that the calibration
+    /// improves on θ_0 nor that it harms.
     NotBetterThanInitial {
         /// Ē_p of the calibrated θ, m.
         calibrated_m: f64,
@@ -397,8 +403,11 @@ pub enum VerdictReason {
         initial_m: f64,
         /// True when on held-out data.
         held_out: bool,
-        /// The standard error of `calibrated_m − initial_m`, m.
-        difference_sigma_m: f64,
+        /// The calibrated θ's E_p,s over θ_0's, the geometric mean over the
+        /// segments.
+        segment_ratio: f64,
+        /// Its logarithm over that logarithm's standard error.
+        segment_ratio_sigmas: f64,
     },
     /// Free parameters the data cannot determine (doubtful).
     Unobservable {
@@ -672,9 +681,10 @@ pub(crate) struct Evidence<'a> {
     pub covariance: &'a [[f64; 4]; 4],
     pub calibrated_m: f64,
     pub initial_m: f64,
-    /// The standard error of `calibrated_m − initial_m`
-    /// ([`crate::assess::position_error::difference_sigma`]), where measured.
-    pub difference_sigma_m: Option<f64>,
+    /// The mean over the validation segments of `ln(E_p,s(θ) / E_p,s(θ_0))`
+    /// and its standard error
+    /// ([`crate::assess::position_error::segment_log_ratio`]), where measured.
+    pub segment_log_ratio: Option<(f64, f64)>,
     /// Ē_p of θ on the fitting data, when the report's data are held out.
     pub fit_m: Option<f64>,
     /// θ and its covariance fitted on the held-out data alone (cross-split check).
@@ -835,22 +845,34 @@ fn beyond_limit(gap: f64, sigma: f64, opts: &TrustOptions) -> Option<f64> {
     (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then_some(sigmas)
 }
 
-/// The comparison with θ_0 on the validation data: rejected where the
-/// calibrated Ē_p is not finite or above θ_0's by more than
-/// [`TrustOptions::worse_than_initial_sigmas`] standard errors of the
-/// difference (or above it at all where that error is unknown), doubtful
-/// where it is above by less.
+/// The comparison with θ_0 on the validation data, where the calibrated
+/// Ē_p is above θ_0's (or not finite): rejected where segment by segment
+/// the calibrated θ's error is above θ_0's by more than
+/// [`TrustOptions::worse_than_initial_sigmas`] standard errors (or where
+/// that could not be measured), doubtful where it is not.
 fn initial_reason(e: &Evidence<'_>, opts: &TrustOptions) -> Option<VerdictReason> {
     let (calibrated_m, initial_m, held_out) = (e.calibrated_m, e.initial_m, e.fit_m.is_some());
-    let difference_sigma_m = e.difference_sigma_m;
     if !calibrated_m.is_nan() && calibrated_m <= initial_m {
         return None;
     }
-    match difference_sigma_m {
-        Some(s) if calibrated_m - initial_m <= opts.worse_than_initial_sigmas * s => {
-            Some(VerdictReason::NotBetterThanInitial { calibrated_m, initial_m, held_out, difference_sigma_m: s })
+    let finite = |x: f64| x.is_finite().then_some(x);
+    match e.segment_log_ratio.filter(|_| calibrated_m.is_finite()) {
+        Some((mean, sigma)) if sigma > 0.0 && mean <= opts.worse_than_initial_sigmas * sigma => {
+            Some(VerdictReason::NotBetterThanInitial {
+                calibrated_m,
+                initial_m,
+                held_out,
+                segment_ratio: mean.exp(),
+                segment_ratio_sigmas: mean / sigma,
+            })
         }
-        _ => Some(VerdictReason::WorseThanInitial { calibrated_m, initial_m, held_out, difference_sigma_m }),
+        ratio => Some(VerdictReason::WorseThanInitial {
+            calibrated_m,
+            initial_m,
+            held_out,
+            segment_ratio: ratio.and_then(|(m, _)| finite(m.exp())),
+            segment_ratio_sigmas: ratio.and_then(|(m, s)| finite(m / s)),
+        }),
     }
 }
 
@@ -984,7 +1006,7 @@ mod tests {
             covariance: cov,
             calibrated_m: 2.0,
             initial_m: 20.0,
-            difference_sigma_m: None,
+            segment_log_ratio: None,
             fit_m: None,
             split: None,
             extrinsics: None,
@@ -1333,33 +1355,49 @@ mod tests {
         assert!(matches!(v.reasons[1], VerdictReason::HeldOutMuchWorse { .. }), "{v:?}");
         assert!(v.reasons[0].to_string().contains("above θ_0's 68.700 m on the held-out data"));
 
-        // Above θ_0 by less than 3 standard errors of the difference: the
-        // data do not tell them apart, doubtful; by more, rejected.
-        let near = |s: f64| Evidence {
+        // Ē_p above θ_0's, the segments' log ratio within 3 of its standard
+        // errors: the data do not tell them apart, doubtful; beyond, rejected.
+        let near = |m: f64| Evidence {
             calibrated_m: 18.04,
             initial_m: 16.63,
-            difference_sigma_m: Some(s),
+            segment_log_ratio: Some((m, 0.1)),
             ..evidence(&th, &cov)
         };
-        let v = judge(&near(0.5), &opts);
+        let v = judge(&near(0.28), &opts);
         assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
-        let VerdictReason::NotBetterThanInitial { held_out: false, difference_sigma_m, .. } = v.reasons[0] else {
+        let VerdictReason::NotBetterThanInitial { held_out: false, segment_ratio, segment_ratio_sigmas, .. } =
+            v.reasons[0]
+        else {
             panic!("{v:?}")
         };
-        assert_eq!(difference_sigma_m, 0.5);
-        assert!(v.reasons[0].to_string().contains("by 2.8 × the standard error of the difference (0.500 m)"), "{v:?}");
-        let v = judge(&near(0.4), &opts);
+        assert!((segment_ratio - 0.28f64.exp()).abs() < 1e-15 && (segment_ratio_sigmas - 2.8).abs() < 1e-12);
+        assert!(
+            v.reasons[0]
+                .to_string()
+                .contains("per segment 1.32 × θ_0's error (geometric mean), 2.8 standard errors above 1: within"),
+            "{}",
+            v.reasons[0]
+        );
+        let v = judge(&near(0.31), &opts);
         assert_eq!(v.level, VerdictLevel::Rejected, "{v:?}");
         assert!(
-            matches!(v.reasons[0], VerdictReason::WorseThanInitial { difference_sigma_m: Some(s), .. } if s == 0.4),
+            matches!(v.reasons[0], VerdictReason::WorseThanInitial { segment_ratio_sigmas: Some(z), .. } if (z - 3.1).abs() < 1e-12),
             "{v:?}"
         );
-        assert!(v.reasons[0].to_string().contains("3.5 × the standard error of the difference (0.400 m)"), "{v:?}");
-        // Below θ_0's: no reason, whatever the noise; a non-finite Ē_p: rejected.
-        let better =
-            Evidence { calibrated_m: 16.0, initial_m: 16.63, difference_sigma_m: Some(5.0), ..evidence(&th, &cov) };
+        assert!(
+            v.reasons[0].to_string().contains("3.1 standard errors above 1: dead reckoning gets worse"),
+            "{}",
+            v.reasons[0]
+        );
+        // Below θ_0's: no reason, whatever the segments say; a non-finite Ē_p: rejected.
+        let better = Evidence {
+            calibrated_m: 16.0,
+            initial_m: 16.63,
+            segment_log_ratio: Some((0.5, 0.1)),
+            ..evidence(&th, &cov)
+        };
         assert_eq!(judge(&better, &opts).level, VerdictLevel::Accepted);
-        let nan = Evidence { calibrated_m: f64::NAN, difference_sigma_m: Some(5.0), ..evidence(&th, &cov) };
+        let nan = Evidence { calibrated_m: f64::NAN, segment_log_ratio: Some((0.0, 0.1)), ..evidence(&th, &cov) };
         assert!(matches!(judge(&nan, &opts).reasons[0], VerdictReason::WorseThanInitial { .. }));
 
         // t_r 15.4 m with σ 0.035 m: rejected by the guard whatever its σ.

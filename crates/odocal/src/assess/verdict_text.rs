@@ -8,29 +8,9 @@ impl std::fmt::Display for VerdictReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             VerdictReason::Implausible { violation } => write!(f, "implausible result: {violation}"),
-            VerdictReason::WorseThanInitial { calibrated_m, initial_m, held_out, difference_sigma_m } => {
-                write!(
-                    f,
-                    "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {} data",
-                    if *held_out { "held-out" } else { "validation" }
-                )?;
-                if let Some(s) = difference_sigma_m {
-                    write!(
-                        f,
-                        ", {:.1} × the standard error of the difference ({s:.3} m)",
-                        (calibrated_m - initial_m) / s
-                    )?;
-                }
-                write!(f, ": dead reckoning gets worse")
+            VerdictReason::WorseThanInitial { .. } | VerdictReason::NotBetterThanInitial { .. } => {
+                initial_text(self, f)
             }
-            VerdictReason::NotBetterThanInitial { calibrated_m, initial_m, held_out, difference_sigma_m } => write!(
-                f,
-                "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {} data, by {:.1} × the standard \
-                 error of the difference ({difference_sigma_m:.3} m): within that noise these data do not show \
-                 the calibration better than θ_0 (nor worse)",
-                if *held_out { "held-out" } else { "validation" },
-                (calibrated_m - initial_m) / difference_sigma_m
-            ),
             VerdictReason::Unobservable { params } => write!(f, "{params} not observable from these data"),
             VerdictReason::AtGuardBound { param, value, fraction } => {
                 write!(f, "{param} = {value:.6} is at {:.0} % of its plausible half-width from θ_0", fraction * 100.0)
@@ -160,4 +140,35 @@ fn held_offset_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::
         (fitted - held).abs() / sigma,
         sigma * 1e3
     )
+}
+
+/// The text of the comparison with θ_0 ([`VerdictReason::WorseThanInitial`],
+/// [`VerdictReason::NotBetterThanInitial`]).
+fn initial_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    let (calibrated_m, initial_m, held_out, ratio, sigmas, worse) = match r {
+        VerdictReason::WorseThanInitial { calibrated_m, initial_m, held_out, segment_ratio, segment_ratio_sigmas } => {
+            (calibrated_m, initial_m, held_out, *segment_ratio, *segment_ratio_sigmas, true)
+        }
+        VerdictReason::NotBetterThanInitial {
+            calibrated_m,
+            initial_m,
+            held_out,
+            segment_ratio,
+            segment_ratio_sigmas,
+        } => (calibrated_m, initial_m, held_out, Some(*segment_ratio), Some(*segment_ratio_sigmas), false),
+        _ => return Ok(()),
+    };
+    let data = if *held_out { "held-out" } else { "validation" };
+    write!(f, "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {data} data")?;
+    if let Some(q) = ratio {
+        write!(f, "; per segment {q:.2} × θ_0's error (geometric mean)")?;
+        if let Some(z) = sigmas {
+            write!(f, ", {z:.1} standard errors above 1")?;
+        }
+    }
+    if worse {
+        write!(f, ": dead reckoning gets worse")
+    } else {
+        write!(f, ": within that noise these data do not show the calibration better than θ_0 (nor worse)")
+    }
 }

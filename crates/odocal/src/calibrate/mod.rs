@@ -45,7 +45,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::assess::position_error::ValidationReport;
-use crate::assess::position_error::{difference_sigma, mean_position_error_by, mean_position_error_with};
+use crate::assess::position_error::{mean_position_error_by, mean_position_error_with, segment_log_ratio};
 use crate::assess::trust::{judge, Evidence, TrustOptions};
 use crate::assess::validation_drives::{CalibrationExtrinsics, HeldOutDrives, ValidationDrive};
 use crate::assess::warning::Warning;
@@ -618,7 +618,7 @@ pub(crate) fn calibrate_core(
             covariance: outcome_covariance(&outcome.detail).unwrap_or(&outcome.covariance),
             calibrated_m: val.mean_position_error_m,
             initial_m: initial_val.mean_position_error_m,
-            difference_sigma_m: difference_sigma(&val.per_segment_m, &initial_val.per_segment_m),
+            segment_log_ratio: segment_log_ratio(&val.per_segment_m, &initial_val.per_segment_m),
             fit_m,
             split,
             extrinsics: extrinsics.as_ref(),
