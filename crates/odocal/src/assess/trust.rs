@@ -1372,9 +1372,9 @@ mod tests {
         };
         assert!((segment_ratio - 0.28f64.exp()).abs() < 1e-15 && (segment_ratio_sigmas - 2.8).abs() < 1e-12);
         assert!(
-            v.reasons[0]
-                .to_string()
-                .contains("per segment 1.32 × θ_0's error (geometric mean), 2.8 standard errors above 1: within"),
+            v.reasons[0].to_string().contains(
+                "per segment 1.32 × θ_0's error (geometric mean), 2.8 standard errors above 1: not beyond the noise"
+            ),
             "{}",
             v.reasons[0]
         );

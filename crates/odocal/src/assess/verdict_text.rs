@@ -169,6 +169,9 @@ fn initial_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt:
     if worse {
         write!(f, ": dead reckoning gets worse")
     } else {
-        write!(f, ": within that noise these data do not show the calibration better than θ_0 (nor worse)")
+        write!(
+            f,
+            ": not beyond the noise, so these data do not settle whether θ or θ_0 is better (check θ on another drive)"
+        )
     }
 }
