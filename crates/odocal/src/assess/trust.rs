@@ -276,9 +276,9 @@ pub struct TrustOptions {
     pub max_fallback_gap_sigmas: f64,
     /// A calibrated Ē_p above θ_0's rejects the result
     /// ([`VerdictReason::WorseThanInitial`]) when, segment by segment, the
-    /// calibrated θ's error is above θ_0's by more than this many standard
-    /// errors: the mean over the validation segments of
-    /// `ln(E_p,s(θ) / E_p,s(θ_0))` above this many of its standard errors.
+    /// calibrated θ's error is above θ_0's beyond the noise: the mean over
+    /// the validation segments of `ln(E_p,s(θ) / E_p,s(θ_0))` more than
+    /// this many of its standard errors above 0.
     /// Otherwise the result is doubtful
     /// ([`VerdictReason::NotBetterThanInitial`]): the validation data then
     /// do not tell θ from θ_0. Default 3. Under heavy wheel noise Ē_p is
@@ -370,9 +370,12 @@ pub enum VerdictReason {
         /// Which guard.
         violation: GuardViolation,
     },
-    /// The calibrated Ē_p is above θ_0's by more than
-    /// [`TrustOptions::worse_than_initial_sigmas`] standard errors of the
-    /// difference, or Ē_p is not finite (rejected).
+    /// The calibrated Ē_p is above θ_0's and, segment by segment, θ's error
+    /// is above θ_0's beyond the noise: the mean of
+    /// `ln(E_p,s(θ) / E_p,s(θ_0))` more than
+    /// [`TrustOptions::worse_than_initial_sigmas`] of its standard errors
+    /// above 0 (or that could not be measured); or Ē_p is not finite
+    /// (rejected).
     WorseThanInitial {
         /// Ē_p of the calibrated θ, m.
         calibrated_m: f64,
