@@ -56,7 +56,9 @@
 //!   noisy regressors. Its scoring metric is the Gauss-Newton matrix
 //!   `Σ (∂r/∂θ)ᵀ(∂r/∂θ)` of the whitened innovations `r = L⁻¹ν` (the
 //!   expected Hessian of J); θ steps are halved on J with objective-only
-//!   filter passes, η steps on the marginal likelihood M (block coordinate).
+//!   filter passes, η steps on the marginal likelihood M (block coordinate;
+//!   near the estimate both step together from one pass, the research
+//!   option `simultaneous_steps`).
 //! - held at a reference (the research option `HeldAtReference`): at a reference θ (batch G-N's
 //!   result, then each pass's): `∂S/∂θ = 0`, so the θ cost is weighted least
 //!   squares on increments with a noisy regressor — attenuation bias, t_r

@@ -252,6 +252,12 @@ macro_rules! research_options {
             /// estimated; see `secant_eta_factor` in the source for the
             /// measurements). Default true.
             $vis eta_secant_damping: bool,
+            /// Near the estimate, step θ and η together from one evaluation
+            /// with all derivatives instead of one after the other (with the
+            /// covariance following θ and η estimated; see
+            /// `SIMULTANEOUS_BELOW` in the source for the rule and the
+            /// measurements). Default true.
+            $vis simultaneous_steps: bool,
             /// What the innovation checks (NIS band, whiteness) take as
             /// consistent. Default [`InnovationNull::FloorsAsRegularisation`]
             /// (see its docs for the measurements); the bootstrap's replicate
@@ -465,6 +471,7 @@ impl Default for ResearchOptions {
             passes: 2,
             covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
             eta_secant_damping: true,
+            simultaneous_steps: true,
             innovation_null: InnovationNull::FloorsAsRegularisation,
             noise_estimate_term: NoiseEstimateTerm::Omitted,
             sideslip_noise: SideslipNoise::GaussMarkovState,
