@@ -240,8 +240,9 @@ struct Pass<'p> {
     theta_settled: bool,
     /// Near the estimate θ and η step together ([`SIMULTANEOUS_BELOW`]).
     simultaneous: bool,
-    /// The last iteration's step was below [`SIMULTANEOUS_BELOW`]: the next
-    /// starts with a simultaneous step.
+    /// The last iteration's step was below [`SIMULTANEOUS_BELOW`] and at
+    /// most [`SIMULTANEOUS_SHRINK`] of the one before (or it was a kept
+    /// simultaneous step): the next starts with a simultaneous step.
     simultaneous_ready: bool,
 }
 
@@ -535,8 +536,9 @@ impl<'p> Pass<'p> {
     /// start ([`SIMULTANEOUS_BELOW`]): the θ scoring step on J and the η
     /// step on M (damped as in [`Pass::eta_step_on_marginal`]), both from
     /// the same point, evaluated in full. Kept when the remaining
-    /// `max |step|/σ` there is below the iteration's `ratio`; returns it, or
-    /// `None` (nothing changed) when not kept.
+    /// `max |step|/σ` there is at most [`SIMULTANEOUS_SHRINK`] of the
+    /// iteration's `ratio`; returns it, or `None` (nothing changed) when not
+    /// kept, and then the pass takes alternating steps to its end.
     fn simultaneous_step(&mut self, dth: &[f64; 4], deta: &[f64; 6], ratio: f64) -> Result<Option<f64>> {
         let (prob, opts, bounds) = (self.prob, self.opts, self.bounds);
         let factor = if opts.research.eta_secant_damping { secant_eta_factor(deta, self.last_eta_step) } else { 1.0 };
