@@ -542,6 +542,9 @@ impl<'p> Pass<'p> {
     fn simultaneous_step(&mut self, dth: &[f64; 4], deta: &[f64; 6], ratio: f64) -> Result<Option<f64>> {
         let (prob, opts, bounds) = (self.prob, self.opts, self.bounds);
         let factor = if opts.research.eta_secant_damping { secant_eta_factor(deta, self.last_eta_step) } else { 1.0 };
+        // Whatever is not kept, alternating steps from here to the end of
+        // the pass.
+        self.simultaneous = false;
         let th = theta_add(&self.theta, dth, 1.0);
         if th.validate().is_err() {
             return Ok(None);
@@ -556,10 +559,9 @@ impl<'p> Pass<'p> {
         // A NaN step counts as not shrinking.
         let shrinks = r < SIMULTANEOUS_SHRINK * ratio;
         if !shrinks {
-            // Alternating steps from here to the end of the pass.
-            self.simultaneous = false;
             return Ok(None);
         }
+        self.simultaneous = true;
         self.theta = th;
         self.eta = et;
         self.ev = ev;
