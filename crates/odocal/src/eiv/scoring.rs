@@ -481,19 +481,18 @@ impl<'p> Pass<'p> {
         // iteration is likely the last but one (`LIKELY_LAST`: the next
         // start is then most likely converged, and a lean start would be
         // evaluated twice).
-        let shrinking = self.history.last().is_some_and(|h| ratio * ratio < opts.step_tolerance * h.step_over_sigma);
+        let before = self.history.last().map(|h| h.step_over_sigma);
+        let shrinking = before.is_some_and(|b| ratio * ratio < opts.step_tolerance * b);
         let likely_last = ratio < LIKELY_LAST * opts.step_tolerance || shrinking;
         // Ready where the alternating steps are converging fast; a step
         // that shrinks less (a ridge of correlated scales) keeps them.
-        let converging = self.history.last().is_some_and(|h| ratio < SIMULTANEOUS_SHRINK * h.step_over_sigma);
+        let converging = before.is_some_and(|b| ratio < SIMULTANEOUS_SHRINK * b);
         self.simultaneous_ready = self.simultaneous && ratio < SIMULTANEOUS_BELOW && converging;
         let next_mode =
             if self.theta_settled || likely_last || self.simultaneous_ready { self.full } else { self.start_mode };
         if deta.iter().any(|x| *x != 0.0) {
-            let factor =
-                if opts.research.eta_secant_damping { secant_eta_factor(&deta, self.last_eta_step) } else { 1.0 };
             let deta_raw = deta;
-            let deta = damp_eta_step(&deta, &self.eta, factor, bounds);
+            let (deta, factor) = self.damped_eta_step(&deta);
             let previous_m = self.ev.total.merit();
             let accept_m = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
                 let c = t.total.merit();
@@ -532,6 +531,15 @@ impl<'p> Pass<'p> {
         Ok(Some(ratio))
     }
 
+    /// The η scoring step `deta` from the current η, damped by the secant
+    /// factor (research option `eta_secant_damping`) except where it lands
+    /// on a clamp; with that factor.
+    fn damped_eta_step(&self, deta: &[f64; 6]) -> ([f64; 6], f64) {
+        let factor =
+            if self.opts.research.eta_secant_damping { secant_eta_factor(deta, self.last_eta_step) } else { 1.0 };
+        (damp_eta_step(deta, &self.eta, factor, self.bounds), factor)
+    }
+
     /// θ and η stepped together from the full evaluation at the iteration's
     /// start ([`SIMULTANEOUS_BELOW`]): the θ scoring step on J and the η
     /// step on M (damped as in [`Pass::eta_step_on_marginal`]), both from
@@ -541,7 +549,6 @@ impl<'p> Pass<'p> {
     /// kept, and then the pass takes alternating steps to its end.
     fn simultaneous_step(&mut self, dth: &[f64; 4], deta: &[f64; 6], ratio: f64) -> Result<Option<f64>> {
         let (prob, opts, bounds) = (self.prob, self.opts, self.bounds);
-        let factor = if opts.research.eta_secant_damping { secant_eta_factor(deta, self.last_eta_step) } else { 1.0 };
         // Whatever is not kept, alternating steps from here to the end of
         // the pass.
         self.simultaneous = false;
@@ -549,7 +556,8 @@ impl<'p> Pass<'p> {
         if th.validate().is_err() {
             return Ok(None);
         }
-        let et = eta_add(&self.eta, &damp_eta_step(deta, &self.eta, factor, bounds), 1.0, bounds);
+        let (damped, factor) = self.damped_eta_step(deta);
+        let et = eta_add(&self.eta, &damped, 1.0, bounds);
         let Ok(ev) = prob.evaluate(&th, &self.theta_ref, &et, self.full) else {
             return Ok(None);
         };

@@ -83,10 +83,11 @@ const RECORDED: [Recorded; 5] = [
 
 /// The options the cases were recorded with (SPEC §10's cost and floor, the
 /// heading tied to the position scale, quantisation as process noise, the η
-/// step undamped, θ and η stepping alternately to the end, no null pass of the innovation checks, the σ of H_θ⁻¹
-/// alone without the noise-estimate term, the sideslip error as white
-/// noise, 10 iterations, a_y's noise without a floor), spelt out so that a change of the defaults does
-/// not change the cases.
+/// step undamped, θ and η stepping alternately to the end, no null pass
+/// of the innovation checks, the σ of H_θ⁻¹ alone without the
+/// noise-estimate term, the sideslip error as white noise, 10 iterations,
+/// a_y's noise without a floor), spelt out so that a change of the
+/// defaults does not change the cases.
 fn recorded_base_options() -> EivOptions {
     let spec = EivOptions::spec();
     EivOptions {

@@ -403,7 +403,7 @@ fn simultaneous_steps_reach_the_alternating_estimate_with_fewer_passes() {
 
 /// How far [`simultaneous_steps_reach_the_alternating_estimate_with_fewer_passes`]
 /// lets θ move, in its σ: both fits stop where the remaining step is below
-/// 0.05 σ, and near the estimate each iteration shrinks it 3–55 × (
-/// `LIKELY_LAST` in the source), so the two estimates differ by a small
+/// 0.05 σ, and near the estimate each iteration shrinks it 3–55 ×
+/// (`LIKELY_LAST` in the source), so the two estimates differ by a small
 /// part of that.
 const SIMULTANEOUS_THETA_TOL: f64 = 0.02;
