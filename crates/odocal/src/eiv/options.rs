@@ -258,6 +258,12 @@ macro_rules! research_options {
             /// `SIMULTANEOUS_BELOW` in the source for the rule and the
             /// measurements). Default true.
             $vis simultaneous_steps: bool,
+            /// After a kept simultaneous step, take the last step without
+            /// evaluating the derivatives after it where the step shrinking
+            /// as it did predicts a remainder below the tolerance (see
+            /// `Pass::final_step` in the source for the rule and the
+            /// measurements). Default true.
+            $vis final_step: bool,
             /// What the innovation checks (NIS band, whiteness) take as
             /// consistent. Default [`InnovationNull::FloorsAsRegularisation`]
             /// (see its docs for the measurements); the bootstrap's replicate
@@ -472,6 +478,7 @@ impl Default for ResearchOptions {
             covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
             eta_secant_damping: true,
             simultaneous_steps: true,
+            final_step: true,
             innovation_null: InnovationNull::FloorsAsRegularisation,
             noise_estimate_term: NoiseEstimateTerm::Omitted,
             sideslip_noise: SideslipNoise::GaussMarkovState,

@@ -20,6 +20,17 @@ pub enum Termination {
         /// The tolerance.
         threshold: f64,
     },
+    /// The last step was taken without evaluating the derivatives after it:
+    /// the steps shrank fast enough that the remainder, predicted from the
+    /// step before, is below the tolerance.
+    FinalStep {
+        /// `max |step_i|/σ_i` of the step taken.
+        step_over_sigma: f64,
+        /// The remainder predicted, `step_over_sigma²` over the step before's.
+        predicted_over_sigma: f64,
+        /// The tolerance.
+        threshold: f64,
+    },
     /// `max_iterations` steps were taken; the last one was still this large.
     MaxIterations {
         /// The limit.
@@ -39,9 +50,10 @@ pub enum Termination {
 }
 
 impl Termination {
-    /// True when the fit converged (step tolerance met).
+    /// True when the fit converged (step tolerance met, or predicted to be
+    /// met after a final step).
     pub(crate) fn converged(&self) -> bool {
-        matches!(self, Termination::StepTolerance { .. })
+        matches!(self, Termination::StepTolerance { .. } | Termination::FinalStep { .. })
     }
 }
 
@@ -51,6 +63,10 @@ impl std::fmt::Display for Termination {
             Termination::StepTolerance { step_over_sigma, threshold } => {
                 write!(f, "step tolerance: max|step|/σ {step_over_sigma:.2e} < {threshold}")
             }
+            Termination::FinalStep { step_over_sigma, predicted_over_sigma, threshold } => write!(
+                f,
+                "final step: max|step|/σ {step_over_sigma:.2e} taken, remainder predicted {predicted_over_sigma:.2e} < {threshold}"
+            ),
             Termination::MaxIterations { iterations, step_over_sigma } => {
                 write!(f, "iteration limit: {iterations} (last max|step|/σ {step_over_sigma:.2e})")
             }
@@ -286,7 +302,8 @@ research_pub! {
         /// Accepted iterations.
         pub history: Vec<IterationRecord>,
         /// `max |Δη_j|/σ_j` of the η scoring step remaining at the end (η not at
-        /// a clamp; `None` when η is fixed or the pass stopped before a step).
+        /// a clamp; `None` when η is fixed or the pass stopped before a step;
+        /// predicted, as the whole remainder is, after a [`Termination::FinalStep`]).
         #[serde(default)]
         pub eta_step_over_sigma: Option<f64>,
     }

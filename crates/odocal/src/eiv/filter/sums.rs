@@ -205,6 +205,22 @@ impl WindowSums {
         }
     }
 
+    /// Takes the values that are not derivatives (the objective's terms,
+    /// the whiteness sums, the input log-Jacobian's weights) from `o`, an
+    /// evaluation at another point; the derivatives and information stay.
+    pub(crate) fn take_values(&mut self, o: &WindowSums) {
+        self.quad = o.quad;
+        self.logdet = o.logdet;
+        self.correction = o.correction;
+        self.correction_profile_only = o.correction_profile_only;
+        self.updates = o.updates;
+        self.jacobian = o.jacobian;
+        self.jacobian_weight = o.jacobian_weight;
+        self.turning = o.turning;
+        self.lag1 = o.lag1;
+        self.e2 = o.e2;
+    }
+
     pub(crate) fn add(&mut self, o: &WindowSums) {
         self.quad += o.quad;
         self.logdet += o.logdet;
