@@ -301,9 +301,18 @@ const MAX_PROFILE_STEPS: usize = 6;
 /// likelihood ratio's threshold.
 const PROFILE_TOLERANCE: f64 = 0.1;
 
+/// A step of [`eta_profile`] within this many [`PROFILE_TOLERANCE`]s, or
+/// one that shrinking as the step before did would leave less than the
+/// tolerance (`r_k²/r_{k−1}`), is its last: its point is evaluated for M
+/// only (no η derivatives, about a fifth of the pass), and the profile ends
+/// there. The rule is the fit's for its likely last iteration.
+const PROFILE_LAST: f64 = 5.0;
+
 /// The objective M minimised over η with θ held at the tied θ̂, on the
 /// problem `p` (a separate model's), from the tied η̂: Fisher-scoring steps
-/// in η, each halved until M does not rise. Returns M and η there.
+/// in η, each halved until M does not rise, the last one
+/// ([`PROFILE_LAST`]) without the derivatives after it. Returns M and η
+/// there.
 pub(super) fn eta_profile(
     p: &Problem<'_>,
     tied: &TiedFit,
@@ -314,26 +323,46 @@ pub(super) fn eta_profile(
     let mode = Mode::eta_only(follows);
     let mut eta = tied.eta;
     let mut ev = p.evaluate(&tied.theta, &tied.theta_reference, &eta, mode)?;
+    let mut before: Option<f64> = None;
     for _ in 0..MAX_PROFILE_STEPS {
         let es = eta_step(&ev.total, &eta, bounds, &opts.eta_held);
-        if eta_ratio(&eta, &es.step, &es.sigma, bounds) < PROFILE_TOLERANCE {
+        let ratio = eta_ratio(&eta, &es.step, &es.sigma, bounds);
+        if ratio < PROFILE_TOLERANCE {
             break;
         }
+        let last = opts.research.final_step
+            && (ratio < PROFILE_LAST * PROFILE_TOLERANCE
+                || before.is_some_and(|b| ratio * ratio < PROFILE_TOLERANCE * b));
+        let step_mode = if last { Mode::cost(follows) } else { mode };
         let deta = damp_eta_step(&es.step, &eta, 1.0, bounds);
         let previous = ev.total.merit();
         let accept = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
             let c = t.total.merit();
             (c <= previous, c)
         };
-        let search =
-            line_search(p, &tied.theta, &eta, &[0.0; 4], &deta, &tied.theta_reference, mode, false, opts, &accept)?;
+        let search = line_search(
+            p,
+            &tied.theta,
+            &eta,
+            &[0.0; 4],
+            &deta,
+            &tied.theta_reference,
+            step_mode,
+            false,
+            opts,
+            &accept,
+        )?;
         match search {
             Search::Accepted { eta: et, ev: e, .. } => {
                 eta = et;
                 ev = *e;
+                if last {
+                    break;
+                }
             }
             Search::Rejected { .. } => break,
         }
+        before = Some(ratio);
     }
     Ok((ev.total.merit(), eta))
 }

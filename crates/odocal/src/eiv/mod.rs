@@ -58,7 +58,8 @@
 //!   expected Hessian of J); θ steps are halved on J with objective-only
 //!   filter passes, η steps on the marginal likelihood M (block coordinate;
 //!   near the estimate both step together from one pass, the research
-//!   option `simultaneous_steps`).
+//!   option `simultaneous_steps`, and the last step is taken without the
+//!   pass after it where the steps shrink fast, `final_step`).
 //! - held at a reference (the research option `HeldAtReference`): at a reference θ (batch G-N's
 //!   result, then each pass's): `∂S/∂θ = 0`, so the θ cost is weighted least
 //!   squares on increments with a noisy regressor — attenuation bias, t_r

@@ -262,7 +262,8 @@ macro_rules! research_options {
             /// evaluating the derivatives after it where the step shrinking
             /// as it did predicts a remainder below the tolerance (see
             /// `Pass::final_step` in the source for the rule and the
-            /// measurements). Default true.
+            /// measurements); the heading-drift test's η profiles end the
+            /// same way (`PROFILE_LAST`). Default true.
             $vis final_step: bool,
             /// What the innovation checks (NIS band, whiteness) take as
             /// consistent. Default [`InnovationNull::FloorsAsRegularisation`]
