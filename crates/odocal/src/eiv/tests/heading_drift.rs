@@ -112,24 +112,33 @@ fn a_heading_held_at_its_floor_that_drifts_more_is_flagged() {
 /// alone. At `r = 0` that returns to the tied fit (it minimised M over η at
 /// θ̂): the ratio against itself is 0 within the profile's tolerance. At
 /// `r = −1` the η fit lowers M below its value at the tied η̂.
-#[test]
-fn the_likelihood_ratio_refits_eta_with_theta_held() {
+/// A 3 km drive whose reference position drifts far more than its heading.
+fn drifting_reference() -> crate::sim::SimOutput {
     let noise = NoiseOptions { position_drift_sigma_m: 1.0, heading_drift_sigma_rad: 2e-4, ..NoiseOptions::paper() };
-    let out = simulate(&SimOptions { length_km: 3.0, noise, ..SimOptions::paper(8) }).expect("sim");
-    let input = input_of(&out.drive);
-    let start = batch_gn_all(&out.drive);
-    let opts = EivOptions::default();
-    let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
-    let prob = Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts);
-    let pass = scoring_pass(&prob, start, [0.0; 6], start, opts.free, true, &opts).expect("tied fit");
+    simulate(&SimOptions { length_km: 3.0, noise, ..SimOptions::paper(8) }).expect("sim")
+}
+
+/// The tied fit on `prob` from `start` (converged).
+fn tied_fit(prob: &Problem<'_>, start: Theta, opts: &EivOptions) -> TiedFit {
+    let pass = scoring_pass(prob, start, [0.0; 6], start, opts.free, true, opts).expect("tied fit");
     assert!(pass.report.termination.converged(), "{:?}", pass.report.termination);
-    let tied = TiedFit {
+    TiedFit {
         theta: pass.theta,
         eta: pass.eta,
         theta_reference: pass.report.theta_reference,
         free: pass.free,
         cost: pass.eval.total.merit(),
-    };
+    }
+}
+
+#[test]
+fn the_likelihood_ratio_refits_eta_with_theta_held() {
+    let out = drifting_reference();
+    let input = input_of(&out.drive);
+    let opts = EivOptions::default();
+    let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
+    let prob = Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts);
+    let tied = tied_fit(&prob, batch_gn_all(&out.drive), &opts);
     let (m0, eta0) = eta_profile(&prob, &tied, follows, &opts).expect("profile at r = 0");
     assert!(m0 <= tied.cost && 2.0 * (tied.cost - m0) < 0.05, "{m0} vs {}", tied.cost);
     assert!(eta0.iter().zip(&tied.eta).all(|(a, b)| (a - b).abs() < 0.1), "{eta0:?} vs {:?}", tied.eta);
@@ -148,23 +157,14 @@ fn the_likelihood_ratio_refits_eta_with_theta_held() {
 /// derivatives fewer per profile that took a step.
 #[test]
 fn the_profiles_last_step_saves_its_derivatives_and_keeps_m() {
-    let noise = NoiseOptions { position_drift_sigma_m: 1.0, heading_drift_sigma_rad: 2e-4, ..NoiseOptions::paper() };
-    let out = simulate(&SimOptions { length_km: 3.0, noise, ..SimOptions::paper(8) }).expect("sim");
+    let out = drifting_reference();
     let input = input_of(&out.drive);
-    let start = batch_gn_all(&out.drive);
     let with = EivOptions::default();
     let without =
         EivOptions { research: ResearchOptions { final_step: false, ..with.research.clone() }, ..with.clone() };
     let follows = with.research.covariance == CovarianceMode::FollowsTheta;
     let prob = Problem::new(&input, make_windows(input.parts, with.window_samples), &with);
-    let pass = scoring_pass(&prob, start, [0.0; 6], start, with.free, true, &with).expect("tied fit");
-    let tied = TiedFit {
-        theta: pass.theta,
-        eta: pass.eta,
-        theta_reference: pass.report.theta_reference,
-        free: pass.free,
-        cost: pass.eval.total.merit(),
-    };
+    let tied = tied_fit(&prob, batch_gn_all(&out.drive), &with);
     let mut saved = 0;
     for r in [-2.0, -1.0, 1.0] {
         let run = |opts: &EivOptions| {
