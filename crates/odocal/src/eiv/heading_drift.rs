@@ -305,7 +305,9 @@ const PROFILE_TOLERANCE: f64 = 0.1;
 /// one that shrinking as the step before did would leave less than the
 /// tolerance (`r_k²/r_{k−1}`), is its last: its point is evaluated for M
 /// only (no η derivatives, about a fifth of the pass), and the profile ends
-/// there. The rule is the fit's for its likely last iteration.
+/// there, unless the step had to be halved (then its point is evaluated
+/// with the derivatives and the profile goes on). The rule is the fit's
+/// for its likely last iteration.
 const PROFILE_LAST: f64 = 5.0;
 
 /// The objective M minimised over η with θ held at the tied θ̂, on the
@@ -353,11 +355,17 @@ pub(super) fn eta_profile(
             &accept,
         )?;
         match search {
-            Search::Accepted { eta: et, ev: e, .. } => {
+            Search::Accepted { eta: et, ev: e, lambda, .. } => {
                 eta = et;
                 ev = *e;
-                if last {
+                let halved = lambda < 1.0;
+                if last && !halved {
                     break;
+                }
+                if last {
+                    // A halved last step leaves more than predicted: the
+                    // profile goes on from its point, with the derivatives.
+                    ev = p.evaluate(&tied.theta, &tied.theta_reference, &eta, mode)?;
                 }
             }
             Search::Rejected { .. } => break,
