@@ -562,12 +562,9 @@ impl<'p> Pass<'p> {
         // Whatever is not kept, alternating steps from here to the end of
         // the pass.
         self.simultaneous = false;
-        let th = theta_add(&self.theta, dth, 1.0);
-        if th.validate().is_err() {
+        let Some((th, et, factor)) = self.simultaneous_point(dth, deta) else {
             return Ok(None);
-        }
-        let (damped, factor) = self.damped_eta_step(deta);
-        let et = eta_add(&self.eta, &damped, 1.0, bounds);
+        };
         let Ok(ev) = prob.evaluate(&th, &self.theta_ref, &et, self.full) else {
             return Ok(None);
         };
@@ -580,24 +577,42 @@ impl<'p> Pass<'p> {
             return Ok(None);
         }
         self.simultaneous = true;
-        self.theta = th;
-        self.eta = et;
         self.ev = ev;
         self.eta_moved = deta.iter().any(|x| *x != 0.0);
-        if self.eta_moved {
-            self.last_eta_step = Some((*deta, factor));
-        }
         self.eta_sigma = es.sigma;
         self.eta_last = Some(eta_ratio(&et, &es.step, &es.sigma, bounds));
         self.simultaneous_before = Some(ratio);
+        self.move_to(th, et, deta, factor, ratio);
+        Ok(Some(r))
+    }
+
+    /// The point of a simultaneous step from here: θ + `dth` and η + `deta`
+    /// damped ([`Pass::damped_eta_step`]), with the damping factor; `None`
+    /// where that θ is not valid.
+    fn simultaneous_point(&self, dth: &[f64; 4], deta: &[f64; 6]) -> Option<(Theta, [f64; 6], f64)> {
+        let th = theta_add(&self.theta, dth, 1.0);
+        th.validate().ok()?;
+        let (damped, factor) = self.damped_eta_step(deta);
+        Some((th, eta_add(&self.eta, &damped, 1.0, self.bounds), factor))
+    }
+
+    /// Moves the pass to the point `(th, et)` of a simultaneous step of
+    /// `max |step|/σ` `ratio` (the η scoring step `deta`, damped by `factor`)
+    /// and records the iteration, its cost from the evaluation `ev` holds
+    /// there.
+    fn move_to(&mut self, th: Theta, et: [f64; 6], deta: &[f64; 6], factor: f64, ratio: f64) {
+        if deta.iter().any(|x| *x != 0.0) {
+            self.last_eta_step = Some((*deta, factor));
+        }
+        self.theta = th;
+        self.eta = et;
         self.history.push(IterationRecord {
-            theta: self.theta,
-            eta: self.eta,
-            cost: self.objective(&self.ev, &self.theta),
+            theta: th,
+            eta: et,
+            cost: self.objective(&self.ev, &th),
             step_over_sigma: ratio,
             step_factor: 1.0,
         });
-        Ok(Some(r))
     }
 
     /// The last step, taken without the derivatives after it
@@ -623,17 +638,14 @@ impl<'p> Pass<'p> {
     /// Returns whether the step was taken; where the point is not a valid θ
     /// or its evaluation fails, nothing changed.
     fn final_step(&mut self, dth: &[f64; 4], deta: &[f64; 6], ratio: f64, before: f64) -> Result<bool> {
-        let (opts, bounds) = (self.opts, self.bounds);
+        let opts = self.opts;
         let predicted = ratio * ratio / before;
         if !(opts.research.final_step && predicted < opts.step_tolerance) {
             return Ok(false);
         }
-        let th = theta_add(&self.theta, dth, 1.0);
-        if th.validate().is_err() {
+        let Some((th, et, factor)) = self.simultaneous_point(dth, deta) else {
             return Ok(false);
-        }
-        let (damped, factor) = self.damped_eta_step(deta);
-        let et = eta_add(&self.eta, &damped, 1.0, bounds);
+        };
         let Ok(at) = self.prob.evaluate(&th, &self.theta_ref, &et, Mode::cost(self.follows)) else {
             return Ok(false);
         };
@@ -641,19 +653,8 @@ impl<'p> Pass<'p> {
         for (w, a) in self.ev.windows.iter_mut().zip(&at.windows) {
             w.take_values(a);
         }
-        if deta.iter().any(|x| *x != 0.0) {
-            self.last_eta_step = Some((*deta, factor));
-        }
         self.eta_last = self.eta_last.map(|r| r * r / before);
-        self.theta = th;
-        self.eta = et;
-        self.history.push(IterationRecord {
-            theta: th,
-            eta: et,
-            cost: self.objective(&self.ev, &th),
-            step_over_sigma: ratio,
-            step_factor: 1.0,
-        });
+        self.move_to(th, et, deta, factor, ratio);
         self.termination = Termination::FinalStep {
             step_over_sigma: ratio,
             predicted_over_sigma: predicted,

@@ -108,10 +108,6 @@ fn a_heading_held_at_its_floor_that_drifts_more_is_flagged() {
     assert!(h.evaluations[0] > 0, "the fit's passes are the test's: {h:?}");
 }
 
-/// The likelihood ratio holds θ at the tied fit's θ̂ and minimises M over η
-/// alone. At `r = 0` that returns to the tied fit (it minimised M over η at
-/// θ̂): the ratio against itself is 0 within the profile's tolerance. At
-/// `r = −1` the η fit lowers M below its value at the tied η̂.
 /// A 3 km drive whose reference position drifts far more than its heading.
 fn drifting_reference() -> crate::sim::SimOutput {
     let noise = NoiseOptions { position_drift_sigma_m: 1.0, heading_drift_sigma_rad: 2e-4, ..NoiseOptions::paper() };
@@ -131,6 +127,10 @@ fn tied_fit(prob: &Problem<'_>, start: Theta, opts: &EivOptions) -> TiedFit {
     }
 }
 
+/// The likelihood ratio holds θ at the tied fit's θ̂ and minimises M over η
+/// alone. At `r = 0` that returns to the tied fit (it minimised M over η at
+/// θ̂): the ratio against itself is 0 within the profile's tolerance. At
+/// `r = −1` the η fit lowers M below its value at the tied η̂.
 #[test]
 fn the_likelihood_ratio_refits_eta_with_theta_held() {
     let out = drifting_reference();
