@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use super::csv_lines::LineCounted;
+use rayon::prelude::*;
+
+use super::csv_lines::{count_line_ends, LineCounted};
 use super::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
 use crate::error::{Error, Result};
 
@@ -260,6 +262,30 @@ pub(crate) fn check_header(headers: &[String], path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The smallest part of a drive CSV read by a thread of its own
+/// ([`Columns::read_in_parts`]): a part of a few seconds of a drive is
+/// read about as fast as a thread starts on it.
+const PART_MIN_BYTES: usize = 1 << 20;
+
+/// Where to cut `bytes` into `parts` parts of about equal size, each cut
+/// right after a `\n` at or after `header_end` (the byte the header's
+/// reader stopped at): the offsets, from 0 to `bytes.len()`; fewer parts
+/// where the file has too few line ends.
+fn part_cuts(bytes: &[u8], header_end: usize, parts: usize) -> Vec<usize> {
+    let mut cuts = vec![0];
+    for k in 1..parts {
+        let last = cuts.last().copied().unwrap_or(0);
+        let from = (bytes.len() / parts * k).max(header_end).max(last);
+        match bytes.get(from..).and_then(|rest| memchr::memchr(b'\n', rest)) {
+            Some(i) if from + i + 1 < bytes.len() => cuts.push(from + i + 1),
+            _ => break,
+        }
+    }
+    cuts.push(bytes.len());
+    cuts.dedup();
+    cuts
+}
+
 /// The cells of a canonical CSV by column, and the file line of each row.
 struct Columns {
     /// Column names, in file order.
@@ -280,6 +306,105 @@ impl Columns {
     /// non-number or a non-finite number in a column odocal uses, or no row
     /// at all is an error.
     fn read(rdr: &mut ::csv::Reader<LineCounted<&[u8]>>, headers: Vec<String>, path: &Path) -> Result<Columns> {
+        let cols = Self::read_rows(rdr, headers, path)?;
+        if cols.lines.is_empty() {
+            return Err(Error::InvalidDrive {
+                context: path.display().to_string(),
+                reason: "the file has a header but no data rows".into(),
+            });
+        }
+        Ok(cols)
+    }
+
+    /// [`Columns::read`] of a whole file, `bytes`, in parts at once, one per
+    /// thread of the rayon pool and none under `min_part` bytes. `rdr` has
+    /// read the header, `headers`, and is used as it is where the file is
+    /// read in one part.
+    ///
+    /// The parts are cut after line ends (`\n`), each read with its file
+    /// lines: the result is the same as reading the file in one part. So is
+    /// the error: the parts are read to their first error and the first
+    /// part's counts. A file holding a `"` is read in one part (a quoted
+    /// field may hold a line end, so a cut after one need not be between
+    /// rows), and one whose extra column turns to text in any part is read
+    /// again in one part (the cells after the first text cell are kept as
+    /// written, which only the part that holds it knows).
+    fn read_in_parts(
+        mut rdr: ::csv::Reader<LineCounted<&[u8]>>,
+        bytes: &[u8],
+        headers: Vec<String>,
+        path: &Path,
+        min_part: usize,
+    ) -> Result<Columns> {
+        let parts = rayon::current_num_threads().min(bytes.len() / min_part.max(1));
+        let header_end = usize::try_from(rdr.position().byte()).unwrap_or(bytes.len());
+        let cuts = part_cuts(bytes, header_end, parts);
+        if cuts.len() < 3 || memchr::memchr(b'"', bytes).is_some() {
+            return Self::read(&mut rdr, headers, path);
+        }
+        let spans: Vec<(usize, usize)> = cuts.windows(2).map(|w| (w[0], w[1])).collect();
+        let ends: Vec<u64> = spans.par_iter().map(|&(a, b)| count_line_ends(&bytes[a..b])).collect();
+        let first_lines: Vec<u64> = ends.iter().scan(1, |line, e| Some(std::mem::replace(line, *line + e))).collect();
+        let read: Vec<Option<Result<Columns>>> = spans
+            .par_iter()
+            .zip(&first_lines)
+            .map(|(&(a, b), &line)| {
+                let part = &bytes[a..b];
+                if a == 0 {
+                    let mut rdr = super::csv_lines::reader(part);
+                    // The whole header in the first part; else (never seen) one part.
+                    let same = rdr.headers().is_ok_and(|h| h.iter().eq(headers.iter().map(String::as_str)));
+                    same.then(|| Self::read_rows(&mut rdr, headers.clone(), path))
+                } else {
+                    // Rows of the wrong length are the row check's error, as the
+                    // header's reader gives them.
+                    let mut rdr = ::csv::ReaderBuilder::new()
+                        .has_headers(false)
+                        .flexible(true)
+                        .trim(::csv::Trim::All)
+                        .from_reader(LineCounted::starting_at(part, line));
+                    Some(Self::read_rows(&mut rdr, headers.clone(), path))
+                }
+            })
+            .collect();
+        let mut joined: Option<Columns> = None;
+        for r in read {
+            let Some(cols) = r.transpose()? else {
+                return Self::read_whole(bytes, headers, path);
+            };
+            if cols.text.iter().any(Option::is_some) {
+                return Self::read_whole(bytes, headers, path);
+            }
+            match joined.as_mut() {
+                None => joined = Some(cols),
+                Some(j) => j.append(cols),
+            }
+        }
+        match joined {
+            Some(cols) if !cols.lines.is_empty() => Ok(cols),
+            _ => Self::read_whole(bytes, headers, path),
+        }
+    }
+
+    /// [`Columns::read`] of the whole file `bytes` in one part.
+    fn read_whole(bytes: &[u8], headers: Vec<String>, path: &Path) -> Result<Columns> {
+        let mut rdr = super::csv_lines::reader(bytes);
+        if let Err(e) = rdr.headers().map(|_| ()) {
+            return Err(from_csv(path, e, rdr.get_mut()));
+        }
+        Self::read(&mut rdr, headers, path)
+    }
+
+    /// Appends the rows of `other`, read after these (same headers, numbers only).
+    fn append(&mut self, other: Columns) {
+        for (mine, theirs) in self.nums.iter_mut().zip(other.nums) {
+            mine.extend(theirs);
+        }
+        self.lines.extend(other.lines);
+    }
+
+    /// The rows `rdr` gives, none an error.
+    fn read_rows(rdr: &mut ::csv::Reader<LineCounted<&[u8]>>, headers: Vec<String>, path: &Path) -> Result<Columns> {
         let numeric: Vec<bool> = headers
             .iter()
             .map(|h| {
@@ -301,12 +426,6 @@ impl Columns {
                 cols.push(j, field, line, path)?;
             }
             cols.lines.push(line);
-        }
-        if cols.lines.is_empty() {
-            return Err(Error::InvalidDrive {
-                context: path.display().to_string(),
-                reason: "the file has a header but no data rows".into(),
-            });
         }
         Ok(cols)
     }
@@ -495,6 +614,12 @@ impl Drive {
     /// Parses canonical CSV from bytes; `path` is used in error messages
     /// (outside the crate: [`Drive::read_csv`] of a file).
     pub(crate) fn parse_csv(bytes: &[u8], path: &Path) -> Result<Drive> {
+        Self::parse_csv_in_parts(bytes, path, PART_MIN_BYTES)
+    }
+
+    /// [`Drive::parse_csv`], its rows read in parts of at least `min_part`
+    /// bytes ([`Columns::read_in_parts`]).
+    fn parse_csv_in_parts(bytes: &[u8], path: &Path, min_part: usize) -> Result<Drive> {
         if let Some(what) = not_csv(bytes) {
             return Err(Error::InvalidDrive { context: path.display().to_string(), reason: what.into() });
         }
@@ -512,7 +637,7 @@ impl Drive {
             Err(e) => return Err(from_csv(path, e, rdr.get_mut())),
         };
         check_header(&headers, path)?;
-        let cols = Columns::read(&mut rdr, headers, path).map_err(|e| short_last_row(e, bytes))?;
+        let cols = Columns::read_in_parts(rdr, bytes, headers, path, min_part).map_err(|e| short_last_row(e, bytes))?;
         cols.into_drive(path)
     }
 
@@ -588,6 +713,86 @@ mod tests {
 
     fn parse(s: &str) -> Result<Drive> {
         Drive::parse_csv(s.as_bytes(), Path::new("d.csv"))
+    }
+
+    /// `text` read in one part and in parts of at least 64 bytes by 4
+    /// threads: the drives, or the errors' messages.
+    fn in_one_part_and_in_parts(
+        text: &[u8],
+    ) -> (std::result::Result<Drive, String>, std::result::Result<Drive, String>) {
+        let read = |min_part: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("pool");
+            pool.install(|| Drive::parse_csv_in_parts(text, Path::new("d.csv"), min_part).map_err(|e| e.to_string()))
+        };
+        (read(usize::MAX), read(64))
+    }
+
+    #[test]
+    fn a_file_read_in_parts_gives_the_drive_of_one_part() {
+        let sim = crate::sim::simulate(&crate::sim::SimOptions { length_km: 0.3, ..crate::sim::SimOptions::paper(2) })
+            .expect("sim");
+        let mut lf = Vec::new();
+        sim.drive.write_csv_to(&mut lf).expect("write");
+        let crlf = String::from_utf8(lf.clone()).expect("utf-8").replace('\n', "\r\n").into_bytes();
+        let extra = String::from_utf8(lf.clone())
+            .expect("utf-8")
+            .lines()
+            .enumerate()
+            .map(|(i, l)| format!("{l},{}\n", if i == 0 { "note".to_string() } else { (i % 7).to_string() }))
+            .collect::<String>();
+        // An extra column that turns to text far into the file, and a quoted one.
+        let on_rows = |rows: std::ops::Range<usize>, cell: &str| {
+            let mut lines: Vec<String> = extra.lines().map(str::to_string).collect();
+            for line in &mut lines[rows] {
+                let last = line.rfind(',').expect("a comma");
+                line.replace_range(last + 1.., cell);
+            }
+            lines.join("\n") + "\n"
+        };
+        let text_late = on_rows(150..151, "late");
+        // Quoted numbers that hold line ends (trimmed): a cut after one is
+        // inside a row.
+        let quoted = on_rows(1..sim.drive.len() + 1, "\"7\n\"");
+        for text in [lf, crlf, extra.into_bytes(), text_late.into_bytes(), quoted.into_bytes()] {
+            let (one, parts) = in_one_part_and_in_parts(&text);
+            let one = one.expect("a valid drive");
+            assert_eq!(Ok(&one), parts.as_ref(), "{}", String::from_utf8_lossy(&text[..200]));
+            assert!(one.len() > 200);
+        }
+    }
+
+    #[test]
+    fn a_file_read_in_parts_fails_as_in_one_part() {
+        let base = csv_text(400, 0.025);
+        let lines: Vec<&str> = base.lines().collect();
+        let faults: [&dyn Fn(&str) -> String; 8] = [
+            &|l| l.replacen(",", ",abc", 2).replacen(",abc", ",", 1),
+            &|l| l.replacen(",0,", ",inf,", 1),
+            &|l| l.rsplit_once(',').map_or("", |x| x.0).to_string(),
+            &|l| format!("{l},9"),
+            &|l| l.replacen(",0,", ",0\u{0},", 1),
+            &|_| "   ".to_string(),
+            &|l| format!("{l}\n\n"),
+            &|l| format!("{l}\r"),
+        ];
+        for row in [1, 2, 37, 150, 200, 399, 400] {
+            for (k, fault) in faults.iter().enumerate() {
+                for ending in ["\n", "\r\n"] {
+                    let mut text: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+                    text[row] = fault(&text[row]);
+                    let text = text.join(ending) + ending;
+                    let (one, parts) = in_one_part_and_in_parts(text.as_bytes());
+                    assert_eq!(one, parts, "fault {k} on row {row}, line ending {ending:?}");
+                }
+            }
+            // Bytes that are not UTF-8 in a number.
+            let mut bytes = base.clone().into_bytes();
+            let at = base.match_indices('\n').nth(row - 1).map(|(i, _)| i + 3).expect("row");
+            bytes[at] = 0xff;
+            let (one, parts) = in_one_part_and_in_parts(&bytes);
+            assert!(one.is_err());
+            assert_eq!(one, parts, "invalid UTF-8 on row {row}");
+        }
     }
 
     #[test]

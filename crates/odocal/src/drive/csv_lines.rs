@@ -69,7 +69,13 @@ pub(crate) struct LineCounted<R> {
 impl<R> LineCounted<R> {
     /// Wraps `inner`, whose first byte is at offset 0 on line 1.
     pub(crate) fn new(inner: R) -> LineCounted<R> {
-        LineCounted { inner, offset: 0, line: 1, at_start: true, after_cr: false, starts: VecDeque::new(), line_len: 0 }
+        LineCounted::starting_at(inner, 1)
+    }
+
+    /// Wraps `inner`, whose first byte is at offset 0 and starts line
+    /// `line` of the file (a part of a file cut after a line ending).
+    pub(crate) fn starting_at(inner: R, line: u64) -> LineCounted<R> {
+        LineCounted { inner, offset: 0, line, at_start: true, after_cr: false, starts: VecDeque::new(), line_len: 0 }
     }
 
     /// The line of the record that starts at byte `offset` (a `csv`
@@ -163,6 +169,16 @@ impl<R: Read> Read for LineCounted<R> {
 /// fields trimmed, over [`LineCounted`] so that errors name the file line.
 pub(crate) fn reader<R: Read>(inner: R) -> ::csv::Reader<LineCounted<R>> {
     ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(inner))
+}
+
+/// The line ends in `bytes` as [`LineCounted`] counts them: `\n`, `\r\n`
+/// and a lone `\r` each end one line (the line `bytes` ends on, when it
+/// follows them, is this count + 1).
+pub(crate) fn count_line_ends(bytes: &[u8]) -> u64 {
+    let lf = memchr::memchr_iter(b'\n', bytes).count();
+    let cr = memchr::memchr_iter(b'\r', bytes).count();
+    let crlf = memchr::memmem::find_iter(bytes, b"\r\n").count();
+    (lf + cr - crlf) as u64
 }
 
 /// A CSV reader's error in words, without the reader's own position

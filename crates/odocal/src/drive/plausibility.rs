@@ -2,6 +2,8 @@
 //! [`PhysicalLimits`] (every [`Drive`] is checked when it is built) and
 //! its wheel and heading conventions against its own reference.
 
+use rayon::prelude::*;
+
 use crate::error::{Error, Result};
 use crate::model::limits::PhysicalLimits;
 use crate::model::Theta;
@@ -148,6 +150,11 @@ pub(crate) fn check_conventions_from(drive: &Drive, theta0: &Theta, context: &st
     conventions(drive, (theta0, "θ_0"), context, first)
 }
 
+/// Per moving sample ([`conventions`]): the wheel/reference speed ratio,
+/// the heading's offset from the direction of travel, and on turns the
+/// wheels' and the reference's yaw rates.
+type Moving = (f64, f64, Option<(f64, f64)>);
+
 /// [`check_conventions_from`] at `theta`, which the messages call `name`.
 fn conventions(drive: &Drive, (theta0, name): (&Theta, &str), context: &str, first: usize) -> Result<()> {
     use crate::model::{kinematics, wrap_angle};
@@ -156,29 +163,36 @@ fn conventions(drive: &Drive, (theta0, name): (&Theta, &str), context: &str, fir
     }
     let ts = drive.sample_time_s();
     let (px, py, psi) = (drive.px(), drive.py(), drive.psi());
-    let (mut ratios, mut offsets, mut yaw) = (Vec::new(), Vec::new(), Vec::new());
-    for r in drive.parts() {
-        for i in r.start..r.end.saturating_sub(1) {
+    // The samples are independent (and the medians and the share below do
+    // not depend on their order): computed by rayon's threads.
+    let moving: Vec<Moving> = drive
+        .parts()
+        .iter()
+        .flat_map(|r| r.start..r.end.saturating_sub(1))
+        .collect::<Vec<usize>>()
+        .into_par_iter()
+        .filter_map(|i| {
             let (dx, dy) = (px[i + 1] - px[i], py[i + 1] - py[i]);
             let v_ref = dx.hypot(dy) / ts;
             if v_ref < 2.0 {
-                continue;
+                return None;
             }
             let k = kinematics(&drive.input(i), theta0);
-            ratios.push(k.speed_m_per_s / v_ref);
-            offsets.push(wrap_angle(psi[i] - dy.atan2(dx)));
             let w_ref = (psi[i + 1] - psi[i]) / ts;
-            if w_ref.abs() > 0.05 {
-                yaw.push((k.yaw_rate_rad_per_s, w_ref));
-            }
-        }
-    }
-    if ratios.len() < 200 {
+            let yaw = (w_ref.abs() > 0.05).then_some((k.yaw_rate_rad_per_s, w_ref));
+            Some((k.speed_m_per_s / v_ref, wrap_angle(psi[i] - dy.atan2(dx)), yaw))
+        })
+        .collect();
+    if moving.len() < 200 {
         return Ok(());
     }
+    let mut ratios: Vec<f64> = moving.iter().map(|m| m.0).collect();
+    let mut offsets: Vec<f64> = moving.iter().map(|m| m.1).collect();
+    let yaw: Vec<(f64, f64)> = moving.iter().filter_map(|m| m.2).collect();
+    // The upper median: the value a full sort puts at len / 2.
     let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
     };
     let fail = |reason: String| Err(Error::InvalidDrive { context: context.to_string(), reason });
     let ratio = median(&mut ratios);
