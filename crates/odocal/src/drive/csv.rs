@@ -367,7 +367,7 @@ impl Columns {
                 }
             })
             .collect();
-        let mut joined: Option<Columns> = None;
+        let mut parts = Vec::with_capacity(read.len());
         for r in read {
             let Some(cols) = r.transpose()? else {
                 return Self::read_whole(bytes, headers, path);
@@ -375,12 +375,9 @@ impl Columns {
             if cols.text.iter().any(Option::is_some) {
                 return Self::read_whole(bytes, headers, path);
             }
-            match joined.as_mut() {
-                None => joined = Some(cols),
-                Some(j) => j.append(cols),
-            }
+            parts.push(cols);
         }
-        match joined {
+        match Self::join(parts) {
             Some(cols) if !cols.lines.is_empty() => Ok(cols),
             _ => Self::read_whole(bytes, headers, path),
         }
@@ -395,12 +392,24 @@ impl Columns {
         Self::read(&mut rdr, headers, path)
     }
 
-    /// Appends the rows of `other`, read after these (same headers, numbers only).
-    fn append(&mut self, other: Columns) {
-        for (mine, theirs) in self.nums.iter_mut().zip(other.nums) {
-            mine.extend(theirs);
+    /// The rows of `parts` (same headers, numbers only) one after another,
+    /// each column joined by a thread of its own; `None` for no part.
+    fn join(parts: Vec<Columns>) -> Option<Columns> {
+        let mut parts = parts.into_iter();
+        let mut first = parts.next()?;
+        let rest: Vec<Columns> = parts.collect();
+        let rows = first.lines.len() + rest.iter().map(|p| p.lines.len()).sum::<usize>();
+        first.nums.par_iter_mut().enumerate().for_each(|(j, column)| {
+            column.reserve_exact(rows.saturating_sub(column.len()));
+            for p in &rest {
+                column.extend_from_slice(&p.nums[j]);
+            }
+        });
+        first.lines.reserve_exact(rows.saturating_sub(first.lines.len()));
+        for p in &rest {
+            first.lines.extend_from_slice(&p.lines);
         }
-        self.lines.extend(other.lines);
+        Some(first)
     }
 
     /// The rows `rdr` gives, none an error.

@@ -157,32 +157,14 @@ type Moving = (f64, f64, Option<(f64, f64)>);
 
 /// [`check_conventions_from`] at `theta`, which the messages call `name`.
 fn conventions(drive: &Drive, (theta0, name): (&Theta, &str), context: &str, first: usize) -> Result<()> {
-    use crate::model::{kinematics, wrap_angle};
-    if let Some(reason) = stalled_signal(drive, (theta0, name), first) {
+    // The checks are independent: pairs of them run at once, and they are
+    // judged in the order written, each pair only where the checks before
+    // it passed.
+    let (stalled, moving) =
+        rayon::join(|| stalled_signal(drive, (theta0, name), first), || moving_samples(drive, theta0));
+    if let Some(reason) = stalled {
         return Err(Error::InvalidDrive { context: context.to_string(), reason });
     }
-    let ts = drive.sample_time_s();
-    let (px, py, psi) = (drive.px(), drive.py(), drive.psi());
-    // The samples are independent (and the medians and the share below do
-    // not depend on their order): computed by rayon's threads.
-    let moving: Vec<Moving> = drive
-        .parts()
-        .iter()
-        .flat_map(|r| r.start..r.end.saturating_sub(1))
-        .collect::<Vec<usize>>()
-        .into_par_iter()
-        .filter_map(|i| {
-            let (dx, dy) = (px[i + 1] - px[i], py[i + 1] - py[i]);
-            let v_ref = dx.hypot(dy) / ts;
-            if v_ref < 2.0 {
-                return None;
-            }
-            let k = kinematics(&drive.input(i), theta0);
-            let w_ref = (psi[i + 1] - psi[i]) / ts;
-            let yaw = (w_ref.abs() > 0.05).then_some((k.yaw_rate_rad_per_s, w_ref));
-            Some((k.speed_m_per_s / v_ref, wrap_angle(psi[i] - dy.atan2(dx)), yaw))
-        })
-        .collect();
     if moving.len() < 200 {
         return Ok(());
     }
@@ -225,13 +207,43 @@ fn conventions(drive: &Drive, (theta0, name): (&Theta, &str), context: &str, fir
             ));
         }
     }
-    if let Some(reason) = lateral_fit(drive).and_then(|f| f.problem("column 'a_y'")) {
+    let (lateral, lag) =
+        rayon::join(|| lateral_fit(drive).and_then(|f| f.problem("column 'a_y'")), || clock_lag(drive, theta0));
+    if let Some(reason) = lateral {
         return fail(reason.1);
     }
-    if let Some(reason) = clock_lag(drive, theta0) {
+    if let Some(reason) = lag {
         return fail(reason);
     }
     Ok(())
+}
+
+/// [`Moving`] of every sample of `drive` where the reference moves faster
+/// than 2 m/s, the wheels read at `theta0`, in sample order. The samples
+/// are independent (and the medians and the share [`conventions`] takes
+/// of them do not depend on their order): computed by rayon's threads.
+fn moving_samples(drive: &Drive, theta0: &Theta) -> Vec<Moving> {
+    use crate::model::{kinematics, wrap_angle};
+    let ts = drive.sample_time_s();
+    let (px, py, psi) = (drive.px(), drive.py(), drive.psi());
+    drive
+        .parts()
+        .iter()
+        .flat_map(|r| r.start..r.end.saturating_sub(1))
+        .collect::<Vec<usize>>()
+        .into_par_iter()
+        .filter_map(|i| {
+            let (dx, dy) = (px[i + 1] - px[i], py[i + 1] - py[i]);
+            let v_ref = dx.hypot(dy) / ts;
+            if v_ref < 2.0 {
+                return None;
+            }
+            let k = kinematics(&drive.input(i), theta0);
+            let w_ref = (psi[i + 1] - psi[i]) / ts;
+            let yaw = (w_ref.abs() > 0.05).then_some((k.yaw_rate_rad_per_s, w_ref));
+            Some((k.speed_m_per_s / v_ref, wrap_angle(psi[i] - dy.atan2(dx)), yaw))
+        })
+        .collect()
 }
 
 /// Largest lag between the wheels and the reference [`clock_lag`] lets

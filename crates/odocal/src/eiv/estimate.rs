@@ -201,11 +201,18 @@ fn prepare<'o>(
     if windows.is_empty() {
         return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
     }
-    let q_found = opts.quantisation_level.step_found(input);
-    let a_y_floor = opts.reads_a_y_floor().then(|| input.a_y_sample_noise());
+    // Three independent reads of the drive, by rayon's threads.
+    let (q_found, (a_y_floor, heading_floor)) = rayon::join(
+        || opts.quantisation_level.step_found(input),
+        || {
+            rayon::join(
+                || opts.reads_a_y_floor().then(|| input.a_y_sample_noise()),
+                || opts.reads_heading_floor().then(|| input.heading_sample_noise()),
+            )
+        },
+    );
     // Below R's own heading floor the readings' noise changes nothing.
-    let heading_floor =
-        opts.reads_heading_floor().then(|| input.heading_sample_noise()).filter(|f| *f > filter::HEADING_FLOOR_RAD);
+    let heading_floor = heading_floor.filter(|f| *f > filter::HEADING_FLOOR_RAD);
     let opts =
         if opts.quantisation_level == QuantisationLevel::FromReadings || a_y_floor.is_some() || heading_floor.is_some()
         {
