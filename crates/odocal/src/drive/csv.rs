@@ -393,20 +393,24 @@ impl Columns {
     }
 
     /// The rows of `parts` (same headers, numbers only) one after another,
-    /// each column joined by a thread of its own; `None` for no part.
+    /// each column joined by a thread of its own, the parts' copies of a
+    /// column freed once it is joined (memory as for one part, but for the
+    /// columns being joined); `None` for no part.
     fn join(parts: Vec<Columns>) -> Option<Columns> {
         let mut parts = parts.into_iter();
         let mut first = parts.next()?;
-        let rest: Vec<Columns> = parts.collect();
+        let mut rest: Vec<Columns> = parts.collect();
         let rows = first.lines.len() + rest.iter().map(|p| p.lines.len()).sum::<usize>();
-        first.nums.par_iter_mut().enumerate().for_each(|(j, column)| {
+        let later: Vec<Vec<Vec<f64>>> =
+            (0..first.nums.len()).map(|j| rest.iter_mut().map(|p| std::mem::take(&mut p.nums[j])).collect()).collect();
+        first.nums.par_iter_mut().zip(later).for_each(|(column, later)| {
             column.reserve_exact(rows.saturating_sub(column.len()));
-            for p in &rest {
-                column.extend_from_slice(&p.nums[j]);
+            for part in later {
+                column.extend_from_slice(&part);
             }
         });
         first.lines.reserve_exact(rows.saturating_sub(first.lines.len()));
-        for p in &rest {
+        for p in rest {
             first.lines.extend_from_slice(&p.lines);
         }
         Some(first)
