@@ -4,6 +4,8 @@
 //! - `model`: one model step with all Jacobians (with `--features research`:
 //!   the Jacobians are research-visible in the library);
 //! - `simulate`: the default 24 km paper-noise drive;
+//! - `read_csv`: reading the 24 km drive's CSV (15 MB) on one thread and
+//!   on all of rayon's, whose parts it parses at once;
 //! - `validate`: Ē_p of one θ on all validation segments of the 24 km drive;
 //! - `three_step`: the full default 3-step calibration on 6/12/24/48 km
 //!   (linear growth expected);
@@ -46,6 +48,19 @@ fn bench_simulate(c: &mut Criterion) {
     g.sample_size(10);
     g.bench_function("paper_24km", |b| b.iter(|| simulate(&SimOptions::paper(1)).expect("simulate")));
     g.finish();
+}
+
+fn bench_read_csv(c: &mut Criterion) {
+    let path = std::env::temp_dir().join(format!("odocal-bench-read-{}.csv", std::process::id()));
+    drive(24.0).write_csv(&path).expect("write the drive");
+    let mut g = c.benchmark_group("read_csv_24km");
+    g.sample_size(20);
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    g.bench_function("one_thread", |b| b.iter(|| one.install(|| odocal::Drive::read_csv(&path).expect("read"))));
+    let threads = rayon::current_num_threads();
+    g.bench_function(format!("{threads}_threads"), |b| b.iter(|| odocal::Drive::read_csv(&path).expect("read")));
+    g.finish();
+    let _ = std::fs::remove_file(&path);
 }
 
 fn bench_validate(c: &mut Criterion) {
@@ -94,5 +109,5 @@ fn bench_eiv(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_model, bench_simulate, bench_validate, bench_three_step, bench_eiv);
+criterion_group!(benches, bench_model, bench_simulate, bench_read_csv, bench_validate, bench_three_step, bench_eiv);
 criterion_main!(benches);
