@@ -62,7 +62,10 @@ fn main() {
     }
 }
 
-/// One calibration, measured: prints `wall_s cpu_s peak_kb samples`.
+/// One calibration, measured: prints `wall_s cpu_s peak_kb samples
+/// passes`, `passes` the EIV filter's passes with derivatives (the fit's
+/// and its heading-drift test's; 0 for the other methods), read from the
+/// report after the clock stopped.
 fn worker(argv: &[String]) -> Res<()> {
     let [path, method, threads] = argv else {
         return Err(format!("--worker needs DRIVE.csv METHOD THREADS\n\n{USAGE}").into());
@@ -73,10 +76,15 @@ fn worker(argv: &[String]) -> Res<()> {
     let opts = CalibrationOptions { method: method.parse::<Method>()?, ..Default::default() };
     let cpu0 = cpu_seconds()?;
     let t = Instant::now();
-    calibrate(&drive, &opts)?;
+    let report = calibrate(&drive, &opts)?;
     let wall = t.elapsed().as_secs_f64();
     let cpu = cpu_seconds()? - cpu0;
-    println!("{wall} {cpu} {} {}", peak_rss_kb()?, drive.len());
+    let peak = peak_rss_kb()?;
+    let json = serde_json::to_value(&report)?;
+    let with_derivatives = |v: &serde_json::Value| v.get("evaluations").and_then(|e| e.get(0)?.as_u64()).unwrap_or(0);
+    let eiv = &json["eiv"];
+    let passes = with_derivatives(eiv) + with_derivatives(&eiv["heading_drift"]);
+    println!("{wall} {cpu} {peak} {} {passes}", drive.len());
     Ok(())
 }
 
@@ -111,14 +119,22 @@ struct Sample {
     cpu: f64,
     peak_kb: f64,
     samples: usize,
+    /// EIV filter passes with derivatives (0 for the other methods).
+    passes: u64,
 }
 
 fn parse_sample(out: &str) -> Res<Sample> {
     let v: Vec<&str> = out.split_whitespace().collect();
-    let [wall, cpu, peak, samples] = v[..] else {
+    let [wall, cpu, peak, samples, passes] = v[..] else {
         return Err(format!("unexpected worker output '{out}'").into());
     };
-    Ok(Sample { wall: wall.parse()?, cpu: cpu.parse()?, peak_kb: peak.parse()?, samples: samples.parse()? })
+    Ok(Sample {
+        wall: wall.parse()?,
+        cpu: cpu.parse()?,
+        peak_kb: peak.parse()?,
+        samples: samples.parse()?,
+        passes: passes.parse()?,
+    })
 }
 
 fn worker_command(drive: &Path, method: &str, threads: usize) -> Res<Command> {
@@ -163,6 +179,14 @@ impl Cell {
     }
     fn samples(&self) -> usize {
         self.runs.first().map_or(0, |s| s.samples)
+    }
+    /// The EIV passes with derivatives, "–" for the other methods (every
+    /// run of a cell takes the same: the fit is deterministic).
+    fn passes(&self) -> String {
+        match self.runs.first().map_or(0, |s| s.passes) {
+            0 => "–".into(),
+            n => n.to_string(),
+        }
     }
 }
 
@@ -456,6 +480,7 @@ fn length_table(plan: &Plan, cells: &[Cell]) -> Table {
         ">CPU per km vs 24 km",
         ">wall per km vs 24 km",
         ">wall per sample vs 24 km",
+        ">EIV passes",
         ">peak RSS",
     ]);
     let t = plan.length_threads;
@@ -481,6 +506,7 @@ fn length_table(plan: &Plan, cells: &[Cell]) -> Table {
                 format!("{cpu_per_km:.2}"),
                 format!("{per_km:.2}"),
                 format!("{per_sample:.2}"),
+                c.passes(),
                 format!("{:.0} MB", c.peak_mb()),
             ]);
         }
