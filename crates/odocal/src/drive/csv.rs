@@ -141,13 +141,9 @@ pub(crate) fn from_csv<R>(path: &Path, e: ::csv::Error, lines: &mut LineCounted<
 /// The line number of the last line of `bytes` that is not blank (lines
 /// end at `\n`, `\r\n` or a lone `\r`, as for the CSV parser).
 fn last_line(bytes: &[u8]) -> u64 {
+    // The text up to the last byte that is not white space, so no `\r\n` is cut.
     let end = bytes.iter().rposition(|b| !b.is_ascii_whitespace()).map_or(0, |i| i + 1);
-    let breaks = bytes[..end]
-        .iter()
-        .enumerate()
-        .filter(|&(i, &b)| b == b'\n' || (b == b'\r' && bytes.get(i + 1) != Some(&b'\n')))
-        .count();
-    breaks as u64 + 1
+    count_line_ends(&bytes[..end]) + 1
 }
 
 /// A row with too few fields on the last line: says the file looks cut off.

@@ -228,10 +228,8 @@ fn moving_samples(drive: &Drive, theta0: &Theta) -> Vec<Moving> {
     let (px, py, psi) = (drive.px(), drive.py(), drive.psi());
     drive
         .parts()
-        .iter()
-        .flat_map(|r| r.start..r.end.saturating_sub(1))
-        .collect::<Vec<usize>>()
-        .into_par_iter()
+        .par_iter()
+        .flat_map(|r| (r.start..r.end.saturating_sub(1)).into_par_iter())
         .filter_map(|i| {
             let (dx, dy) = (px[i + 1] - px[i], py[i + 1] - py[i]);
             let v_ref = dx.hypot(dy) / ts;
