@@ -49,7 +49,7 @@ use serde::{Deserialize, Serialize};
 
 use super::filter::Mode;
 use super::problem::{Evaluation, Problem};
-use super::scoring::{eta_ratio, line_search, scoring_pass, PassOutcome, Search};
+use super::scoring::{eta_ratio, line_search, scoring_pass, PassOutcome, PassStart, Search};
 use super::steps::{damp_eta_step, eta_step};
 use super::{CovarianceMode, EivOptions, NoiseSource};
 use crate::error::Result;
@@ -278,7 +278,7 @@ pub(super) fn test<'a>(
         // from θ̂ and the η that minimised M there.
         let o = options_at(opts, r);
         let p = problem_at(prob, &o);
-        let pass = scoring_pass(&p, tied.theta, eta, tied.theta_reference, tied.free, false, &o);
+        let pass = scoring_pass(&p, tied.theta, eta, tied.theta_reference, tied.free, PassStart::Later, &o);
         count(&p);
         match pass {
             Ok(pass) if pass.report.termination.converged() => {

@@ -265,6 +265,13 @@ macro_rules! research_options {
             /// measurements); the heading-drift test's η profiles end the
             /// same way (`PROFILE_LAST`). Default true.
             $vis final_step: bool,
+            /// On a drive of at least twice 12 windows, fit every `k`-th
+            /// window first and start the fit over all windows from that
+            /// estimate (with the covariance following θ and η estimated;
+            /// see `first_pass` in the source for the rule and the
+            /// measurements). The estimate is the same within the step
+            /// tolerance. Default true.
+            $vis coarse_start: bool,
             /// What the innovation checks (NIS band, whiteness) take as
             /// consistent. Default [`InnovationNull::FloorsAsRegularisation`]
             /// (see its docs for the measurements); the bootstrap's replicate
@@ -480,6 +487,7 @@ impl Default for ResearchOptions {
             eta_secant_damping: true,
             simultaneous_steps: true,
             final_step: true,
+            coarse_start: true,
             innovation_null: InnovationNull::FloorsAsRegularisation,
             noise_estimate_term: NoiseEstimateTerm::Omitted,
             sideslip_noise: SideslipNoise::GaussMarkovState,

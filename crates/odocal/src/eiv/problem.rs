@@ -98,6 +98,21 @@ impl<'a> Problem<'a> {
     }
 }
 
+impl<'a> Problem<'a> {
+    /// The same problem over other windows of the drive, its evaluations
+    /// counted from zero.
+    pub(super) fn with_windows(&self, windows: Vec<Window>) -> Problem<'a> {
+        Problem { windows, evaluations: std::cell::Cell::new([0; 2]), ..*self }
+    }
+
+    /// Adds the evaluations of `part`, a problem over every `stride`-th
+    /// window, as the passes over the whole drive they cost (rounded up).
+    pub(super) fn count_evaluations_of(&self, part: &Problem<'_>, stride: usize) {
+        let (mine, theirs) = (self.evaluations.get(), part.evaluations.get());
+        self.evaluations.set(std::array::from_fn(|i| mine[i] + theirs[i].div_ceil(stride.max(1))));
+    }
+}
+
 impl Problem<'_> {
     pub(super) fn evaluate(&self, theta: &Theta, theta_ref: &Theta, eta: &[f64; 6], mode: Mode) -> Result<Evaluation> {
         self.evaluate_with(theta, theta_ref, eta, mode, false)

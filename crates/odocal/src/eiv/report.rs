@@ -306,6 +306,10 @@ research_pub! {
         /// predicted, as the whole remainder is, after a [`Termination::FinalStep`]).
         #[serde(default)]
         pub eta_step_over_sigma: Option<f64>,
+        /// `Some(k)` for a long drive's coarse first stage, which ran on every
+        /// `k`-th window of the drive; `None` for a pass over all windows.
+        #[serde(default)]
+        pub window_stride: Option<usize>,
     }
 }
 
@@ -373,6 +377,9 @@ research_pub! {
         /// Standard deviations of η (0 when fixed or at a clamp).
         pub eta_sigma: [f64; 6],
         /// Filter passes over the drive: `[with derivatives, objective only]`.
+        /// The passes of a coarse first stage over every `k`-th window
+        /// ([`PassReport::window_stride`]) count as the passes over the whole
+        /// drive they cost: their number divided by `k`, rounded up.
         pub evaluations: [usize; 2],
         /// The test of the heading drift's tie to the pose-drift scale η_4, and
         /// whether the result fitted the heading drift on a scale of its own

@@ -23,6 +23,22 @@ pub(super) struct PassOutcome {
     pub(super) eta_sigma: [f64; 6],
 }
 
+/// Where a scoring pass starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum PassStart {
+    /// The fit's first pass: the observability decision is taken at its start.
+    First,
+    /// A pass from an earlier pass's estimate or a chosen point, with the
+    /// parameters it is given free.
+    Later,
+    /// A pass from the estimate of a coarse fit of the same drive
+    /// (`first_pass` in estimate.rs), a few σ from its own: its start is
+    /// evaluated in full and its first step is simultaneous
+    /// ([`SIMULTANEOUS_BELOW`]), as after an alternating iteration that
+    /// converges fast.
+    Near,
+}
+
 /// Result of a line search: the accepted point, or the last cost tried.
 pub(super) enum Search {
     Accepted { theta: Theta, eta: [f64; 6], ev: Box<Evaluation>, lambda: f64 },
@@ -120,10 +136,10 @@ pub(super) fn scoring_pass(
     eta0: [f64; 6],
     theta_ref: Theta,
     free0: [bool; 4],
-    check_observability: bool,
+    start: PassStart,
     opts: &EivOptions,
 ) -> Result<PassOutcome> {
-    let mut pass = Pass::start(prob, theta0, eta0, theta_ref, free0, check_observability, opts)?;
+    let mut pass = Pass::start(prob, theta0, eta0, theta_ref, free0, start, opts)?;
     for it in 0..opts.max_iterations {
         let Some(ratio) = pass.iterate()? else {
             break;
@@ -258,7 +274,7 @@ impl<'p> Pass<'p> {
         eta0: [f64; 6],
         theta_ref: Theta,
         free0: [bool; 4],
-        check_observability: bool,
+        start: PassStart,
         opts: &'p EivOptions,
     ) -> Result<Self> {
         let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
@@ -266,9 +282,11 @@ impl<'p> Pass<'p> {
         let full = Mode::full(follows, eta_derivs);
         let lean = prob.lean_iterations && follows && eta_derivs;
         let start_mode = if lean { Mode::full(follows, false) } else { full };
+        let simultaneous = follows && eta_derivs && opts.research.simultaneous_steps;
+        let near = start == PassStart::Near && simultaneous;
         let mut theta = theta0;
-        let mut ev = prob.evaluate(&theta, &theta_ref, &eta0, start_mode)?;
-        let (free, unobservable, start_ratios) = if check_observability && opts.fix_unobservable {
+        let mut ev = prob.evaluate(&theta, &theta_ref, &eta0, if near { full } else { start_mode })?;
+        let (free, unobservable, start_ratios) = if start == PassStart::First && opts.fix_unobservable {
             let (free, held, ratios) = fix_unobservable(&ev.total.h_theta, &free0, opts);
             (free, held, Some(ratios))
         } else {
@@ -307,8 +325,8 @@ impl<'p> Pass<'p> {
             eta_last: None,
             stopped_at_lean_start: false,
             theta_settled: false,
-            simultaneous: follows && eta_derivs && opts.research.simultaneous_steps,
-            simultaneous_ready: false,
+            simultaneous,
+            simultaneous_ready: near,
             simultaneous_before: None,
         };
         pass.initial_cost = pass.objective(&pass.ev, &pass.theta);
@@ -750,6 +768,7 @@ impl<'p> Pass<'p> {
             termination: self.termination,
             history: self.history,
             eta_step_over_sigma: self.eta_last,
+            window_stride: None,
         };
         let (theta, eta, free, eta_sigma) = (self.theta, self.eta, self.free, self.eta_sigma);
         let (unobservable, start_ratios) = (self.unobservable, self.start_ratios);

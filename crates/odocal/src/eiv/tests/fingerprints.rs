@@ -3,7 +3,7 @@
 use super::support::*;
 use crate::eiv::input::make_windows;
 use crate::eiv::problem::Problem;
-use crate::eiv::scoring::scoring_pass;
+use crate::eiv::scoring::{scoring_pass, PassStart};
 use crate::eiv::*;
 use crate::model::param::ParamSet;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
@@ -276,7 +276,8 @@ fn lean_iteration_starts_give_the_full_evaluations_results_to_the_bit() {
                     lean_iterations: lean,
                     ..Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts)
                 };
-                let out = scoring_pass(&prob, start, [0.0; 6], start, opts.free, true, &opts).expect("scoring pass");
+                let out = scoring_pass(&prob, start, [0.0; 6], start, opts.free, PassStart::First, &opts)
+                    .expect("scoring pass");
                 (out, prob.evaluations.get())
             };
             let ((full, full_passes), (lean, lean_passes)) = (run(false), run(true));

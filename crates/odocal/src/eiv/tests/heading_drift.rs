@@ -5,7 +5,7 @@ use super::support::*;
 use crate::eiv::heading_drift::{eta_profile, options_at, problem_at, TiedFit};
 use crate::eiv::input::make_windows;
 use crate::eiv::problem::Problem;
-use crate::eiv::scoring::scoring_pass;
+use crate::eiv::scoring::{scoring_pass, PassStart};
 use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 use crate::Theta;
@@ -116,7 +116,7 @@ fn drifting_reference() -> crate::sim::SimOutput {
 
 /// The tied fit on `prob` from `start` (converged).
 fn tied_fit(prob: &Problem<'_>, start: Theta, opts: &EivOptions) -> TiedFit {
-    let pass = scoring_pass(prob, start, [0.0; 6], start, opts.free, true, opts).expect("tied fit");
+    let pass = scoring_pass(prob, start, [0.0; 6], start, opts.free, PassStart::First, opts).expect("tied fit");
     assert!(pass.report.termination.converged(), "{:?}", pass.report.termination);
     TiedFit {
         theta: pass.theta,

@@ -455,3 +455,75 @@ fn a_final_step_saves_the_last_pass_and_keeps_the_estimate() {
 /// (`LIKELY_LAST` in the source), so the two estimates differ by a small
 /// part of that.
 const SIMULTANEOUS_THETA_TOL: f64 = 0.02;
+
+/// How far [`a_long_drive_starts_from_a_coarse_fit_and_reaches_the_same_estimate`]
+/// lets θ move, in its σ: both fits stop where the remaining step is below
+/// the step tolerance (0.05 σ), from different sides of the path.
+const COARSE_THETA_TOL: f64 = 0.05;
+
+/// On a drive of at least 24 windows the first pass fits every `k`-th
+/// window first (`coarse_start`, the default). Against the same fit from
+/// the start over all windows: the same estimate within
+/// [`COARSE_THETA_TOL`] of its σ, σ within 1 %, the same noise scales
+/// within their tolerance, the coarse pass reported first with its
+/// stride, and fewer passes over the drive in all. A drive of fewer
+/// windows is fitted as before, to the bit.
+#[test]
+fn a_long_drive_starts_from_a_coarse_fit_and_reaches_the_same_estimate() {
+    // (seed, km, window samples, noise): 24 km is about 65 000 samples, so
+    // windows of 2 500 make 26 (a coarse stride of 2), as the default
+    // windows do on a 48 km drive.
+    let cases: [(u64, f64, usize, NoiseOptions); 4] = [
+        (1, 24.0, 2500, NoiseOptions::paper()),
+        (2, 24.0, 2500, NoiseOptions::paper()),
+        (3, 24.0, 2500, NoiseOptions::high()),
+        (4, 3.0, 6000, NoiseOptions::paper()),
+    ];
+    let (mut coarse_fits, mut saved) = (0, 0i64);
+    for (seed, km, window_samples, noise) in cases {
+        let out = simulate(&SimOptions { length_km: km, noise, ..SimOptions::paper(seed) }).expect("sim");
+        let input = input_of(&out.drive);
+        let start = batch_gn_all(&out.drive);
+        let with = EivOptions { window_samples, ..EivOptions::default() };
+        let without =
+            EivOptions { research: ResearchOptions { coarse_start: false, ..with.research.clone() }, ..with.clone() };
+        let a = estimate(&input, &start, &without).expect("without");
+        let c = estimate(&input, &start, &with).expect("with");
+        let case = format!("seed {seed}, {km} km, windows of {window_samples}");
+        assert!(a.termination.converged() && c.termination.converged(), "{case}: {a} {c}");
+        let stride = c.passes.first().and_then(|p| p.window_stride);
+        if a.windows.len() < 24 {
+            assert_eq!(stride, None, "{case}");
+            assert_eq!(a, EivReport { timing_s: a.timing_s, ..c.clone() }, "{case}: not the same fit");
+            continue;
+        }
+        let k = stride.expect("a coarse pass first");
+        assert_eq!(k, a.windows.len() / 12, "{case}");
+        assert!(c.passes.iter().skip(1).all(|p| p.window_stride.is_none()), "{case}");
+        let (ta, tc) = (a.theta.to_array(), c.theta.to_array());
+        for i in 0..4 {
+            let z = (tc[i] - ta[i]).abs() / a.sigma[i];
+            assert!(z <= COARSE_THETA_TOL, "{case}: θ{i} moved {z} σ");
+            assert!((c.sigma[i] / a.sigma[i] - 1.0).abs() < 1e-2, "{case}: σ{i} {} vs {}", c.sigma[i], a.sigma[i]);
+        }
+        for j in 0..6 {
+            let tol = 0.1 * a.eta_sigma[j].max(1e-3);
+            assert!((c.eta[j] - a.eta[j]).abs() <= tol, "{case}: η{j} {} vs {}", c.eta[j], a.eta[j]);
+        }
+        assert_eq!(a.free, c.free, "{case}");
+        assert_eq!(a.observability.unobservable, c.observability.unobservable, "{case}");
+        eprintln!("{case}: stride {k}, passes {:?} from the start, {:?} coarse first", a.evaluations, c.evaluations);
+        saved += a.evaluations[0] as i64 - c.evaluations[0] as i64;
+        coarse_fits += 1;
+    }
+    assert!(coarse_fits == 3 && saved >= 3, "coarse fits {coarse_fits}, passes saved {saved}");
+}
+
+#[test]
+fn the_coarse_stride_keeps_about_twelve_windows() {
+    use crate::eiv::estimate::coarse_stride;
+    assert_eq!(coarse_stride(11), 0);
+    assert_eq!(coarse_stride(23), 1);
+    assert_eq!(coarse_stride(24), 2);
+    assert_eq!(coarse_stride(55), 4);
+}
