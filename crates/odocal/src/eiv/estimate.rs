@@ -10,7 +10,7 @@ use super::filter::{self, Mode, WindowSums, NETA};
 use super::heading_drift::{self, HeadingDriftTest, SeparateFit, SeparateModel, TiedFit};
 use super::input::make_windows;
 use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
-use super::scoring::{scoring_pass, PassOutcome, PassStart};
+use super::scoring::{held_start, scoring_pass, PassOutcome, PassStart};
 use super::steps::{
     at_lower_clamp, at_upper_clamp, fix_unobservable, observability_of, reentering_sources, theta_step,
 };
@@ -349,18 +349,7 @@ fn first_pass(prob: &Problem<'_>, theta0: Theta, free0: [bool; 4], opts: &EivOpt
         (free0, Vec::new(), None)
     };
     // A parameter found unobservable starts where `Pass::start` puts it.
-    let theta0 = match opts.research.hold_unobservable_at.filter(|_| free != free0) {
-        Some(held) => {
-            let (mut a, h) = (theta0.to_array(), held.to_array());
-            for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
-                a[i] = h[i];
-            }
-            let theta = Theta::from_array(a);
-            theta.validate()?;
-            theta
-        }
-        None => theta0,
-    };
+    let theta0 = held_start(&theta0, &free0, &free, opts)?.unwrap_or(theta0);
     let coarse_opts = EivOptions { step_tolerance: COARSE_STEP_TOLERANCE, ..opts.clone() };
     let windows = prob.windows.iter().skip(stride / 2).step_by(stride).copied().collect();
     let coarse_prob = prob.with_windows(windows);

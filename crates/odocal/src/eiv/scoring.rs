@@ -39,6 +39,28 @@ pub(super) enum PassStart {
     Near,
 }
 
+/// The start with the parameters that the observability decision held
+/// (free in `free0`, not in `free`) at
+/// [`ResearchOptions::hold_unobservable_at`](super::ResearchOptions::hold_unobservable_at);
+/// `None` where nothing was held or no value is given.
+pub(super) fn held_start(
+    theta: &Theta,
+    free0: &[bool; 4],
+    free: &[bool; 4],
+    opts: &EivOptions,
+) -> Result<Option<Theta>> {
+    let Some(held) = opts.research.hold_unobservable_at.filter(|_| free != free0) else {
+        return Ok(None);
+    };
+    let (mut a, h) = (theta.to_array(), held.to_array());
+    for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
+        a[i] = h[i];
+    }
+    let theta = Theta::from_array(a);
+    theta.validate()?;
+    Ok(Some(theta))
+}
+
 /// Result of a line search: the accepted point, or the last cost tried.
 pub(super) enum Search {
     Accepted { theta: Theta, eta: [f64; 6], ev: Box<Evaluation>, lambda: f64 },
@@ -292,13 +314,8 @@ impl<'p> Pass<'p> {
         } else {
             (free0, Vec::new(), None)
         };
-        if let Some(held) = opts.research.hold_unobservable_at.filter(|_| free != free0) {
-            let (mut a, h) = (theta.to_array(), held.to_array());
-            for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
-                a[i] = h[i];
-            }
-            theta = Theta::from_array(a);
-            theta.validate()?;
+        if let Some(held) = held_start(&theta, &free0, &free, opts)? {
+            theta = held;
             ev = prob.evaluate(&theta, &theta_ref, &eta0, start_mode)?;
         }
         let mut pass = Pass {

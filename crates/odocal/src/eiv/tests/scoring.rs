@@ -470,26 +470,34 @@ const COARSE_THETA_TOL: f64 = 0.05;
 /// windows is fitted as before, to the bit.
 #[test]
 fn a_long_drive_starts_from_a_coarse_fit_and_reaches_the_same_estimate() {
-    // (seed, km, window samples, noise): 24 km is about 65 000 samples, so
-    // windows of 2 500 make 26 (a coarse stride of 2), as the default
-    // windows do on a 48 km drive.
-    let cases: [(u64, f64, usize, NoiseOptions); 4] = [
-        (1, 24.0, 2500, NoiseOptions::paper()),
-        (2, 24.0, 2500, NoiseOptions::paper()),
-        (3, 24.0, 2500, NoiseOptions::high()),
-        (4, 3.0, 6000, NoiseOptions::paper()),
+    // (seed, km, window samples, noise, d held): 24 km is about 65 000
+    // samples, so windows of 2 500 make 26 (a coarse stride of 2), as the
+    // default windows do on a 48 km drive. With d held, its resolution is
+    // below its σ, so the observability decision holds it (at a value of
+    // its own, as `calibrate` holds it at batch G-N's).
+    let cases: [(u64, f64, usize, NoiseOptions, bool); 5] = [
+        (1, 24.0, 2500, NoiseOptions::paper(), false),
+        (2, 24.0, 2500, NoiseOptions::paper(), false),
+        (3, 24.0, 2500, NoiseOptions::high(), false),
+        (1, 24.0, 2500, NoiseOptions::paper(), true),
+        (4, 3.0, 6000, NoiseOptions::paper(), false),
     ];
     let (mut coarse_fits, mut saved) = (0, 0i64);
-    for (seed, km, window_samples, noise) in cases {
+    for (seed, km, window_samples, noise, hold_d) in cases {
         let out = simulate(&SimOptions { length_km: km, noise, ..SimOptions::paper(seed) }).expect("sim");
         let input = input_of(&out.drive);
         let start = batch_gn_all(&out.drive);
-        let with = EivOptions { window_samples, ..EivOptions::default() };
+        let held = Theta { d: 0.0007, ..start };
+        let mut with = EivOptions { window_samples, ..EivOptions::default() };
+        if hold_d {
+            with.resolution[3] = 1e-7;
+            with.research.hold_unobservable_at = Some(held);
+        }
         let without =
             EivOptions { research: ResearchOptions { coarse_start: false, ..with.research.clone() }, ..with.clone() };
         let a = estimate(&input, &start, &without).expect("without");
         let c = estimate(&input, &start, &with).expect("with");
-        let case = format!("seed {seed}, {km} km, windows of {window_samples}");
+        let case = format!("seed {seed}, {km} km, windows of {window_samples}, d held {hold_d}");
         assert!(a.termination.converged() && c.termination.converged(), "{case}: {a} {c}");
         let stride = c.passes.first().and_then(|p| p.window_stride);
         if a.windows.len() < 24 {
@@ -501,7 +509,7 @@ fn a_long_drive_starts_from_a_coarse_fit_and_reaches_the_same_estimate() {
         assert_eq!(k, a.windows.len() / 12, "{case}");
         assert!(c.passes.iter().skip(1).all(|p| p.window_stride.is_none()), "{case}");
         let (ta, tc) = (a.theta.to_array(), c.theta.to_array());
-        for i in 0..4 {
+        for i in (0..4).filter(|i| a.free[*i]) {
             let z = (tc[i] - ta[i]).abs() / a.sigma[i];
             assert!(z <= COARSE_THETA_TOL, "{case}: θ{i} moved {z} σ");
             assert!((c.sigma[i] / a.sigma[i] - 1.0).abs() < 1e-2, "{case}: σ{i} {} vs {}", c.sigma[i], a.sigma[i]);
@@ -512,11 +520,15 @@ fn a_long_drive_starts_from_a_coarse_fit_and_reaches_the_same_estimate() {
         }
         assert_eq!(a.free, c.free, "{case}");
         assert_eq!(a.observability.unobservable, c.observability.unobservable, "{case}");
+        if hold_d {
+            assert_eq!(c.observability.unobservable, vec![Param::D], "{case}");
+            assert_eq!((a.theta.d, c.theta.d), (held.d, held.d), "{case}");
+        }
         eprintln!("{case}: stride {k}, passes {:?} from the start, {:?} coarse first", a.evaluations, c.evaluations);
         saved += a.evaluations[0] as i64 - c.evaluations[0] as i64;
         coarse_fits += 1;
     }
-    assert!(coarse_fits == 3 && saved >= 3, "coarse fits {coarse_fits}, passes saved {saved}");
+    assert!(coarse_fits == 4 && saved >= 3, "coarse fits {coarse_fits}, passes saved {saved}");
 }
 
 #[test]
