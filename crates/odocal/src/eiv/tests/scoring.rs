@@ -467,7 +467,7 @@ const COARSE_THETA_TOL: f64 = 0.05;
 /// [`COARSE_THETA_TOL`] of its σ, σ within 1 %, the same noise scales
 /// within their tolerance, the coarse pass reported first with its
 /// stride, and fewer passes over the drive in all. A drive of fewer
-/// windows is fitted as before, to the bit.
+/// windows is fitted as with the option off, to the bit.
 #[test]
 fn a_long_drive_starts_from_a_coarse_fit_and_reaches_the_same_estimate() {
     // (seed, km, window samples, noise, d held): 24 km is about 65 000
