@@ -10,10 +10,8 @@ use super::filter::{self, Mode, WindowSums, NETA};
 use super::heading_drift::{self, HeadingDriftTest, SeparateFit, SeparateModel, TiedFit};
 use super::input::make_windows;
 use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
-use super::scoring::{held_start, scoring_pass, PassOutcome, PassStart};
-use super::steps::{
-    at_lower_clamp, at_upper_clamp, fix_unobservable, observability_of, reentering_sources, theta_step,
-};
+use super::scoring::{held_start, scoring_pass, start_decision, PassOutcome, PassStart};
+use super::steps::{at_lower_clamp, at_upper_clamp, observability_of, reentering_sources, theta_step};
 use super::{
     apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
     EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseEstimateTerm, NoiseModel, NoiseSource,
@@ -308,7 +306,8 @@ const COARSE_WINDOWS: usize = 12;
 const COARSE_STEP_TOLERANCE: f64 = 0.5;
 
 /// The stride of the coarse stage on a drive of `windows` windows: the
-/// coarse fit runs on every `k`-th window; 1 for drives too short for one.
+/// coarse fit runs on every `k`-th window; below 2 (no coarse stage) on a
+/// drive of fewer than twice [`COARSE_WINDOWS`] windows.
 pub(super) fn coarse_stride(windows: usize) -> usize {
     windows / COARSE_WINDOWS
 }
@@ -348,8 +347,7 @@ fn first_pass(prob: &Problem<'_>, theta0: Theta, free0: [bool; 4], opts: &EivOpt
     let (free, unobservable, start_ratios) = if opts.fix_unobservable {
         // The decision of `Pass::start`, from its (lean) start evaluation.
         let ev = prob.evaluate(&theta0, &theta0, &[0.0; 6], Mode::full(true, false))?;
-        let (free, held, ratios) = fix_unobservable(&ev.total.h_theta, &free0, opts);
-        (free, held, Some(ratios))
+        start_decision(&ev.total.h_theta, &free0, opts)
     } else {
         (free0, Vec::new(), None)
     };

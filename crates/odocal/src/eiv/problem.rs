@@ -96,9 +96,7 @@ impl<'a> Problem<'a> {
             c_d_covariance_derivative: opts.research.c_d_covariance_derivative,
         }
     }
-}
 
-impl<'a> Problem<'a> {
     /// The same problem over other windows of the drive, its evaluations
     /// counted from zero.
     pub(super) fn with_windows(&self, windows: Vec<Window>) -> Problem<'a> {

@@ -39,6 +39,22 @@ pub(super) enum PassStart {
     Near,
 }
 
+/// The observability decision at a first pass's start, from `H_θ` there
+/// ([`fix_unobservable`] where `opts.fix_unobservable`): the free mask, the
+/// parameters held and the ratios that decided; `free0` unchanged and
+/// nothing held otherwise.
+pub(super) fn start_decision(
+    h_theta: &nalgebra::Matrix4<f64>,
+    free0: &[bool; 4],
+    opts: &EivOptions,
+) -> ([bool; 4], Vec<Param>, Option<[f64; 4]>) {
+    if !opts.fix_unobservable {
+        return (*free0, Vec::new(), None);
+    }
+    let (free, held, ratios) = fix_unobservable(h_theta, free0, opts);
+    (free, held, Some(ratios))
+}
+
 /// The start with the parameters that the observability decision held
 /// (free in `free0`, not in `free`) at
 /// [`ResearchOptions::hold_unobservable_at`](super::ResearchOptions::hold_unobservable_at);
@@ -308,9 +324,8 @@ impl<'p> Pass<'p> {
         let near = start == PassStart::Near && simultaneous;
         let mut theta = theta0;
         let mut ev = prob.evaluate(&theta, &theta_ref, &eta0, if near { full } else { start_mode })?;
-        let (free, unobservable, start_ratios) = if start == PassStart::First && opts.fix_unobservable {
-            let (free, held, ratios) = fix_unobservable(&ev.total.h_theta, &free0, opts);
-            (free, held, Some(ratios))
+        let (free, unobservable, start_ratios) = if start == PassStart::First {
+            start_decision(&ev.total.h_theta, &free0, opts)
         } else {
             (free0, Vec::new(), None)
         };
