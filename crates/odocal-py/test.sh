@@ -15,12 +15,12 @@ pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
 # pytest compares the package's reports with the CLI's JSON, from the binary
 # the test build builds (test profile, opt-level 2): after the Rust half of
 # README's test command this is a no-op, where a release build of the CLI
-# took 3 min of CI. Floating point is the same at every opt-level (no fast-math).
+# would take 3 min of CI. Floating point is the same at every opt-level (no fast-math).
 cargo test --workspace --no-run --quiet
 # The wheel under test is built with the dev profile, whose settings the
 # test profile shares (root Cargo.toml): it reuses the test build's
 # artifacts and compiles only pyo3, numpy and the bindings (~1 min), where a
-# release build compiled the whole dependency tree again (4 min on the
+# release build would compile the whole dependency tree again (4 min on the
 # 2-core machine). The workspace's debug assertions and overflow checks
 # stay on, as in `cargo test`. A wheel to install for use:
 # `pip install crates/odocal-py` (release).

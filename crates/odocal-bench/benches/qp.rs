@@ -1,6 +1,6 @@
 //! The 3-step method's input compensation (step 2) through its public
 //! entry point, `compensate_segments`: the first selected segments of a
-//! simulated paper drive (K = 650 steps each, SPEC default), compensated at
+//! simulated paper drive (K = 650 steps each, the default of docs/method.md §5), compensated at
 //! the paper's θ_0 with the structured Riccati interior-point solver and
 //! with Clarabel, side by side in one group. Each compensation runs its
 //! re-linearisation loop (warm-started QPs) to convergence, as in a

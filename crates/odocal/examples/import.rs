@@ -25,7 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let selected = calibration_segments(&drive, &o)?;
     let val = validation_segments(&drive, &Default::default())?;
     println!(
-        "segments (SPEC defaults): {} cut, {} selected (peak yaw rate ≥ 0.15 rad/s); {} validation segments",
+        "segments (the paper's defaults): {} cut, {} selected (peak yaw rate ≥ 0.15 rad/s); {} validation segments",
         all.len(),
         selected.len(),
         val.len()

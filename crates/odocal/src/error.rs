@@ -111,7 +111,7 @@ pub enum Error {
     /// the solver said.
     #[error("QP solver: {0}")]
     Qp(String),
-    /// The compensation QP of one segment could not be solved (SPEC §5).
+    /// The compensation QP of one segment could not be solved (docs/method.md §5).
     #[error("compensation of the segment at sample {segment_start} (linearization {linearization}): solver {solver}: {source}{}",
         fallback.as_ref().map(|(n, e)| format!("; fallback {n}: {e}")).unwrap_or_default())]
     Compensation {

@@ -39,7 +39,7 @@ use crate::sim::NoiseOptions;
 /// Settings of an experiment.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExperimentOptions {
-    /// The calibration; its method must be the 3-step method. Default the SPEC's.
+    /// The calibration; its method must be the 3-step method. Default the 3-step method with docs/method.md's defaults.
     pub calibration: CalibrationOptions,
     /// The reachable-minimum search (the estimates are added to its starts).
     /// Default the box around the paper's θ_0, seed 0.

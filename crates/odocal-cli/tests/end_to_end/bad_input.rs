@@ -127,8 +127,8 @@ fn io_errors_are_not_doubled() {
     assert_eq!(e.matches("missing.csv").count(), 1, "{e}");
 }
 
-/// The blow-up manifests end in an error, within 2 GB of address space (the
-/// previous code allocated 3–480 GB on them) and a generous time limit.
+/// The blow-up manifests end in an error, within 2 GB of address space (read
+/// as they ask, they would take 3–480 GB) and a generous time limit.
 #[test]
 #[cfg(target_os = "linux")]
 fn import_blow_ups_stay_bounded() {

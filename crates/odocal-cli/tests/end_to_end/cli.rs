@@ -1,4 +1,4 @@
-//! End-to-end tests of the `odocal` binary: contract (SPEC §9), bad input,
+//! End-to-end tests of the `odocal` binary: contract (docs/reference.md), bad input,
 //! determinism.
 
 use crate::common;

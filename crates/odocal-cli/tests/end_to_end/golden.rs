@@ -3,10 +3,9 @@
 //! `odocal simulate --seed 7 --length-km 4` writes the drive; `calibrate`
 //! (batch-gn, three-step with small step-1 settings, batch-gn with a
 //! hold-out) and `validate` (with the reachable minimum) run on it with
-//! `--json -`. The SPEC §9 fields, the covariance, every step-1 batch score
+//! `--json -`. The contract's fields (docs/reference.md, "Outputs"), the covariance, every step-1 batch score
 //! and the truth block are compared with `tests/data/golden/cli.json`,
-//! written by the binary of main at commit 8f30b25 (before the calibration
-//! modules were split). To write it again (only for an intended change of
+//! written by the binary of main at commit 8f30b25. To write it again (only for an intended change of
 //! the numbers): `ODOCAL_BLESS=1 cargo test -p odocal-cli --test end_to_end golden::`.
 
 use crate::common;
@@ -40,7 +39,7 @@ fn pick(v: &Value, pointers: &[&str]) -> Value {
     out
 }
 
-/// The SPEC §9 fields of a calibrate report and the numbers behind them.
+/// The contract's fields (docs/reference.md, "Outputs") of a calibrate report and the numbers behind them.
 fn pin_calibrate(v: &Value) -> Value {
     assert!(v.pointer("/timing_s/total").and_then(Value::as_f64).is_some(), "timing_s.total");
     let mut p = pick(

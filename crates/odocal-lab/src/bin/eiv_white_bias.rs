@@ -15,8 +15,8 @@
 //!   (the per-sample profile cost, S following θ, F_n and Σ_n at the measured
 //!   input), minimised by Gauss-Newton on the whitened residuals.
 //!
-//! The EIV fits start from SPEC §10's formulation (`EivOptions::spec`: the
-//! measured-input noise scale, no input log-Jacobian term, the 1 mm floor)
+//! The EIV fits start from the base formulation of docs/method.md's Notes
+//! (`EivOptions::spec`: the measured-input noise scale, no input log-Jacobian term, the 1 mm floor)
 //! with the heading tied to the position scale. `--preset` replaces the
 //! white-noise drive built from `--sigma`/`--sim-*`; the `CRB σ` row's mean
 //! column is the mean Cramér–Rao σ over the drives, `CRBmean σ` its

@@ -4,7 +4,7 @@
 //! For every noise preset and seed (seeds 1..=S) it simulates a drive and runs:
 //! - raw batch G-N from θ_0 on `--batches` random batches of N = 5 and N = 10
 //!   selected segments, and on all selected segments at once;
-//! - the 3-step method (SPEC §6: 50 batches of N = 10, 5 picks, every selected
+//! - the 3-step method (docs/method.md §6: 50 batches of N = 10, 5 picks, every selected
 //!   segment compensated), its step 3 on all compensated segments (θ_B,F) and
 //!   on `--batches` random batches of N = 5 and N = 10 compensated segments;
 //! - step 2 + 3 with the inputs compensated at θ_true only, and at θ_0 only,

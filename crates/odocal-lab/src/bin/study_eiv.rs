@@ -34,8 +34,8 @@
 //! `est-lat-given` (at the simulator's), `est-lat-hgiven`, `est-simtau`
 //! (the production-car start with the simulator's time constants),
 //! `est-model` (σ = H_θ⁻¹ alone, `CovarianceEstimate::Model`),
-//! `est-undamped` (no secant damping of the η step), `known-spec` (SPEC
-//! §10's formulation, `EivOptions::spec`: the measured-input noise scale,
+//! `est-undamped` (no secant damping of the η step), `known-spec` (the
+//! base formulation of docs/method.md's Notes, `EivOptions::spec`: the measured-input noise scale,
 //! no input log-Jacobian term, the 1 mm floor), `known-smoothed-share`
 //! (`InputJacobian::SmoothedShare`), and `fo` (`+ fo` rows: each fit minus
 //! its first-order bias, `EivReport::first_order_bias`, no extra filter
@@ -252,7 +252,7 @@ fn jobs(a: &Settings, true_noise: &NoiseModel) -> Vec<(&'static str, EivOptions)
     add("est-model", "EIV est. model σ", research(model, &est));
     let undamped = ResearchOptions { eta_secant_damping: false, ..Default::default() };
     add("est-undamped", "EIV est. undamped η", research(undamped, &est));
-    add("known-spec", "EIV known, SPEC formulation", research(EivOptions::spec().research, &known));
+    add("known-spec", "EIV known, base formulation", research(EivOptions::spec().research, &known));
     let smoothed = ResearchOptions { input_jacobian: InputJacobian::SmoothedShare, ..Default::default() };
     add("known-smoothed-share", "EIV known + jac smoothed", research(smoothed, &known));
     out

@@ -107,7 +107,7 @@ class CalibrationReport:
     def covariance(self) -> np.ndarray:
         """The 4×4 model covariance ``σ²(JᵀWJ)⁻¹`` of θ (zero rows for fixed parameters)."""
         cov = self._dict.get("covariance")
-        if cov is None:  # reports of odocal before the covariance moved to the top level
+        if cov is None:  # a report without a top-level covariance holds it under identification
             cov = self._dict["identification"]["covariance"]
         return np.array(cov, dtype=np.float64)
 

@@ -1,4 +1,4 @@
-//! The dead-reckoning error of θ (SPEC §7), the yardstick of validation,
+//! The dead-reckoning error of θ (docs/method.md §7), the yardstick of validation,
 //! of the reachable minimum and of the calibration's hold-out.
 //!
 //! On each validation segment the model runs with the *measured* wheel
@@ -105,10 +105,10 @@ pub(crate) fn mean_position_error_by(
     Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
 }
 
-/// Mean position error E_p,s of one segment at (θ, e) (SPEC §7 with the
+/// Mean position error E_p,s of one segment at (θ, e) (docs/method.md §7 with the
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
-/// measured one. With `e` all 0 it is the plain E_p,s (SPEC §7), bit for bit
+/// measured one. With `e` all 0 it is the plain E_p,s (docs/method.md §7), bit for bit
 /// (outside the crate: [`dead_reckoning`], which gives the path too).
 pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
@@ -123,7 +123,7 @@ pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, 
 
 /// Dead reckoning of one segment at (θ, e), from the axle pose the
 /// segment's first reference pose implies: its mean position error E_p,s
-/// (SPEC §7 with the model's reference pose: the model's reference point
+/// (docs/method.md §7 with the model's reference pose: the model's reference point
 /// compared with the measured one; with `e` all 0 the plain E_p,s, bit for
 /// bit) and the dead-reckoned positions of the reference point (K+1
 /// points), `(E_p,s in m, [(x, y)])`.

@@ -1,4 +1,4 @@
-//! The reachable minimum of the validation error (SPEC §7).
+//! The reachable minimum of the validation error (docs/method.md §7).
 //!
 //! The *reachable minimum* is the smallest mean position error any θ can
 //! achieve on the validation segments,

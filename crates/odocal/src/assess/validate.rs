@@ -1,4 +1,4 @@
-//! Validation of a calibrated θ by dead reckoning (SPEC §7): [`validate_theta`]
+//! Validation of a calibrated θ by dead reckoning (docs/method.md §7): [`validate_theta`]
 //! is the core of the `validate` command, Ē_p ([`super::position_error`]) of a θ and,
 //! optionally, the reachable minimum ([`super::reachable`]) on the same
 //! segments; [`MultiValidation`] is the table of validation on several
@@ -116,7 +116,7 @@ impl ValidateOptions {
     }
 }
 
-/// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable
+/// The `validate` report (docs/reference.md): Ē_p of θ and, when asked, the reachable
 /// minimum. In JSON the [`ValidationReport`] fields stand at the top level.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ValidateReport {

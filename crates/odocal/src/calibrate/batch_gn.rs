@@ -1,6 +1,6 @@
 //! Raw batch Gauss-Newton: one identification from θ_0 over every selected
-//! segment with the measured wheel rotations (SPEC §4). Biased by input
-//! noise (SPEC §10), but fast and the reference the other methods are
+//! segment with the measured wheel rotations (docs/method.md §4). Biased by input
+//! noise (docs/method.md §9), but fast and the reference the other methods are
 //! judged against.
 
 use std::time::Instant;

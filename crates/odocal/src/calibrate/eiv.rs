@@ -1,5 +1,5 @@
 //! Errors-in-variables calibration as a method (`--method eiv`): the
-//! augmented extended Kalman filter of [`crate::eiv`] (SPEC §10) over
+//! augmented extended Kalman filter of [`crate::eiv`] (docs/method.md §9) over
 //! windows of every part of the drive, started from batch Gauss-Newton over
 //! all cut segments, with a fallback to that batch Gauss-Newton when the
 //! filter's consistency checks say the model does not fit the data.

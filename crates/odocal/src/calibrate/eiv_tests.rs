@@ -359,7 +359,7 @@ fn eiv_on_mounted_drive(
     let out =
         simulate(&SimOptions { length_km: 2.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(21) })
             .expect("sim");
-    // SPEC §10's cost: with a fixed (here wrong: the drive is noise-free)
+    // The base formulation's cost (docs/method.md, Notes): with a fixed (here wrong: the drive is noise-free)
     // noise model the default input log-Jacobian corrects for a bias the
     // data do not have (measured: c_e 5.8e-4, d 1.5e-2 relative); this test
     // is about the extrinsics.

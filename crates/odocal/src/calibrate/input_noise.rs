@@ -3,9 +3,10 @@
 //!
 //! Batch G-N takes the measured wheel rotations as exact. Their white noise
 //! makes the dead-reckoned heading a random walk, and the fit answers it
-//! with a wider track and a smaller c_e (a wider t_r damps the walk; SPEC
-//! §10): a bias that grows with the noise variance and that none of the
-//! fit's σ covers. The check predicts it on the drive itself by SIMEX
+//! with a wider track and a smaller c_e (a wider t_r damps the walk;
+//! docs/method.md, "Batch Gauss-Newton's input-noise bias"): a bias that
+//! grows with the noise variance and that none of the fit's σ covers. The
+//! check predicts it on the drive itself by SIMEX
 //! (simulation-extrapolation; Cook and Stefanski, JASA 1994):
 //!
 //! 1. **The drive's wheel noise.** Over windows of [`WINDOWS_S`] of the

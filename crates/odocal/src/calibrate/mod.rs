@@ -1,5 +1,5 @@
 //! Calibration: the methods that turn a drive into θ, and what they share
-//! (SPEC §6).
+//! (docs/method.md §6).
 //!
 //! A calibration runs in three parts:
 //! 1. *shared preparation* (this module): options checked, validation
@@ -17,7 +17,7 @@
 //! The methods:
 //! - [`batch_gn`]: raw batch Gauss-Newton over all selected segments;
 //! - [`three_step`]: the paper's 3-step method with input compensation;
-//! - [`eiv`]: errors-in-variables filter over whole drive parts (SPEC §10),
+//! - [`eiv`]: errors-in-variables filter over whole drive parts (docs/method.md §9),
 //!   started from batch G-N on all segments, falling back to it when the
 //!   filter's consistency checks fail.
 //!
@@ -92,7 +92,7 @@ pub(crate) use three_step::{FinalSegments, ThreeStepOptions};
 /// Which calibration method to run, with its settings.
 ///
 /// Serialised as `{"name": "three-step", …settings}`; the report's `method`
-/// is the name alone (SPEC §9).
+/// is the name alone (docs/reference.md).
 // Options are built once per calibration and borrowed: boxing the large
 // variant would only make `Method::ThreeStep(ThreeStepOptions { .. })` harder to write.
 #[allow(clippy::large_enum_variant)]
@@ -104,7 +104,7 @@ pub enum Method {
     /// Raw batch Gauss-Newton over all selected segments (its settings are
     /// [`CalibrationOptions::identify`]).
     BatchGn,
-    /// Errors-in-variables filter over every drive part (SPEC §10), started
+    /// Errors-in-variables filter over every drive part (docs/method.md §9), started
     /// from batch G-N on all segments and falling back to it when its
     /// consistency checks fail (default: docs/validation.md measures it against
     /// batch G-N and the 3-step on simulated and real drives).
@@ -167,7 +167,7 @@ impl std::str::FromStr for Method {
     }
 }
 
-/// All settings of a calibration. `Default` holds the SPEC defaults.
+/// All settings of a calibration. `Default` holds the defaults docs/method.md names.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationOptions {
     /// The method and its own settings. Default eiv.
@@ -193,7 +193,7 @@ pub struct CalibrationOptions {
     #[serde(default)]
     pub trust: TrustOptions,
     /// Hold at θ_0 the parameters these data cannot determine, instead of
-    /// estimating them (not in the paper; default false, the SPEC
+    /// estimating them (not in the paper; default false, the paper's
     /// behaviour). When no segment turns enough, c_d, t_r and d are held and
     /// every segment is used; otherwise the observability check
     /// (`crate::identify::observability`) runs on the selected segments at
@@ -307,7 +307,7 @@ impl Holdout {
     }
 }
 
-/// Runs a calibration of `drive` with `opts` (SPEC §6), validated on the
+/// Runs a calibration of `drive` with `opts` (docs/method.md §6), validated on the
 /// drive itself. For validation on held-out or other drives, or a progress
 /// callback, use [`Calibration`].
 ///
@@ -397,7 +397,7 @@ impl<'a> Calibration<'a> {
         }
     }
 
-    /// Runs the calibration (SPEC §6).
+    /// Runs the calibration (docs/method.md §6).
     ///
     /// # Errors
     /// Invalid options, a drive too short or without the data a method

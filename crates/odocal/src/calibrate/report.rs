@@ -57,7 +57,7 @@ research_pub! {
     }
 }
 
-/// Validation summary of the result (SPEC §9 `validation`).
+/// Validation summary of the result (docs/reference.md, "Outputs": `validation`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ValidationSummary {
     /// Ē_p of the result, m.
@@ -85,7 +85,7 @@ pub(crate) enum MethodDetail {
     BatchGn(BatchGnDetail),
 }
 
-/// The calibration report (SPEC §9 and more).
+/// The calibration report (docs/reference.md, "Outputs").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationReport {
     /// The method run (`"three-step"`, `"batch-gn"`, `"eiv"`).

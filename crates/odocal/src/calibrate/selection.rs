@@ -1,5 +1,5 @@
 //! The data and parameters a segment-based method fits: calibration
-//! segments cut and chosen by their turning (SPEC §3, §6), and with
+//! segments cut and chosen by their turning (docs/method.md §3, §6), and with
 //! auto-fix the parameters held because the drive does not show them.
 
 use crate::assess::warning::Warning;
@@ -52,7 +52,7 @@ pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<Segme
     Ok(selection)
 }
 
-/// The segment-based methods' selection (SPEC §3, §6): calibration segments
+/// The segment-based methods' selection (docs/method.md §3, §6): calibration segments
 /// turning at least as fast as the threshold; with none, an error naming the
 /// yaw-only parameters, or (auto-fix) those held and every segment used;
 /// with auto-fix, parameters the observability check names at θ_0 held.

@@ -64,7 +64,7 @@ fn random_batches_are_seeded_and_distinct() {
     }
 }
 
-/// Noise off: the 3-step method recovers θ_true. Not to 1e-9: the SPEC's
+/// Noise off: the 3-step method recovers θ_true. Not to 1e-9: the paper's
 /// input-rate penalty rounds off the simulator's acceleration switches
 /// even without noise (the compensated inputs move by ~1.5 % rms). Measured
 /// here (4 km, all selected segments, structured solver): c_e 1.7e-5,

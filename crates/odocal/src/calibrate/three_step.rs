@@ -1,4 +1,4 @@
-//! The 3-step method with input compensation (SPEC §6, paper §4.2, Fig. 2).
+//! The 3-step method with input compensation (docs/method.md §6, paper §4.2, Fig. 2).
 //!
 //! 1. *Initial identification*: batch G-N from θ_0 on `initial_batches`
 //!    random batches of `initial_batch_size` selected segments, with the
@@ -66,7 +66,7 @@ impl std::str::FromStr for FinalSegments {
     }
 }
 
-/// Settings of the 3-step method. `Default` holds the SPEC defaults.
+/// Settings of the 3-step method. `Default` holds the defaults docs/method.md names.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ThreeStepOptions {
     /// Step 1: number of random batches. Default 50.
@@ -266,7 +266,7 @@ pub(crate) fn equal_step_picks(n: usize, picks: usize) -> Vec<usize> {
 
 research_pub! {
     /// Batch Gauss-Newton from `theta0` on each batch of `data` (indices into
-    /// `data`), each result validated on `validation` (SPEC §6 step 1, and the
+    /// `data`), each result validated on `validation` (docs/method.md §6 step 1, and the
     /// same on compensated inputs). Batches run in parallel; results come back in
     /// batch order whatever the thread count. A failed batch is an `Err` in its
     /// place, so callers decide whether to leave it out.

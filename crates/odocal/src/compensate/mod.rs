@@ -1,4 +1,4 @@
-//! Input compensation by optimal control (SPEC §5, paper §4.1).
+//! Input compensation by optimal control (docs/method.md §5, paper §4.1).
 //!
 //! Expert API: for programs that compensate segments themselves (the
 //! `odocal compensate` command) or compare the QP solvers
@@ -265,7 +265,7 @@ pub(crate) fn build_qp(
     qp
 }
 
-/// Compensates one segment at θ (SPEC §5): solves, re-linearizes around the
+/// Compensates one segment at θ (docs/method.md §5): solves, re-linearizes around the
 /// solution and solves again until the inputs settle (at most
 /// `max_linearizations` solves). A QP failure is returned as an error for
 /// this segment; callers leave the segment out with a warning.
@@ -295,7 +295,7 @@ pub(crate) fn compensate_segment_with_fallback(
     compensate_from(seg, theta, solver, fallback, opts, None).map(|(c, _)| c)
 }
 
-/// Compensates one segment at θ (SPEC §5): solves, re-linearizes around the
+/// Compensates one segment at θ (docs/method.md §5): solves, re-linearizes around the
 /// solution and solves again until the inputs settle (at most
 /// `max_linearizations` solves). A QP on which `solver` stops at its
 /// iteration limit or fails numerically is solved again by `fallback`
@@ -444,7 +444,7 @@ pub struct CompensationStep {
 }
 
 /// Compensated inputs of a set of segments: per segment, the mean of the
-/// compensations over several θ (SPEC §6 step 2).
+/// compensations over several θ (docs/method.md §6 step 2).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CompensatedInputs {
     /// The segments, in order.
@@ -682,7 +682,7 @@ mod tests {
 
     /// Noise-free, constant inputs: the measured inputs are optimal (zero
     /// pose error, zero input change), so compensation leaves them unchanged.
-    /// (With varying true inputs the SPEC's R‖Δn‖² term rounds off speed
+    /// (With varying true inputs the paper's R‖Δn‖² term rounds off speed
     /// changes even without noise: see the white-noise test below.)
     #[test]
     fn noise_free_constant_inputs_are_unchanged() {

@@ -1,4 +1,4 @@
-//! The canonical drive CSV (SPEC §2): reader and writer.
+//! The canonical drive CSV (docs/method.md §2): reader and writer.
 
 use std::path::Path;
 
@@ -562,7 +562,7 @@ impl Columns {
 }
 
 impl Drive {
-    /// Reads a canonical drive CSV (SPEC §2), with what the reader noticed
+    /// Reads a canonical drive CSV (docs/method.md §2), with what the reader noticed
     /// that is not an error: a last line without a newline at its end (a
     /// hand-made file, or one cut off by an interrupted write). Accepts a
     /// UTF-8 BOM, CRLF line endings, extra columns (numbers or text, kept in

@@ -1,5 +1,5 @@
 //! A drive: one uniformly sampled time series of reference poses and model
-//! inputs (SPEC §2), its checked constructor and its canonical CSV reader and
+//! inputs (docs/method.md §2), its checked constructor and its canonical CSV reader and
 //! writer ([`csv`](self#canonical-csv)).
 //!
 //! A drive may consist of several continuous *parts* (after a gap in a real
@@ -64,7 +64,7 @@ pub(crate) use crate::model::limits::echo_num;
 use crate::model::limits::PhysicalLimits;
 use crate::model::{Input, State};
 
-/// Relative tolerance on the uniformity of the sample step (SPEC: 1 %).
+/// Relative tolerance on the uniformity of the sample step (docs/method.md §2: 1 %).
 pub(crate) const STEP_UNIFORMITY_TOL: f64 = 0.01;
 
 /// Names of the seven signal columns of [`Signals`], in [`Signals::columns`] order.

@@ -1,4 +1,4 @@
-//! Cutting a drive into calibration and validation segments (SPEC §3).
+//! Cutting a drive into calibration and validation segments (docs/method.md §3).
 //!
 //! Expert API: for programs that run the steps ([`crate::identify`],
 //! [`crate::compensate`]) or score θ on segments themselves; a calibration

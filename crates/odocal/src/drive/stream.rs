@@ -43,7 +43,7 @@ const KEPT: usize = 8;
 /// Values per read of a kept column when hashing.
 const BLOCK: usize = 4096;
 
-/// A canonical drive CSV (SPEC §2) read as a stream: what
+/// A canonical drive CSV (docs/method.md §2) read as a stream: what
 /// [`Drive::read_csv`] reads, checked the same way, handed out in chunks
 /// ([`DriveStream::chunks`]) with the same values, sample time and parts,
 /// and the same [`fingerprint`](DriveStream::fingerprint), while memory

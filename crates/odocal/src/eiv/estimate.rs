@@ -38,7 +38,7 @@ fn kernel_instruction_set() -> &'static str {
 }
 
 research_pub! {
-    /// Estimates θ (and the noise scales η) by the EIV method of SPEC §10,
+    /// Estimates θ (and the noise scales η) by the EIV method of docs/method.md §9,
     /// starting from `theta_start` (batch Gauss-Newton on all segments).
     ///
     /// Two passes of Fisher scoring on the objective M of the module docs;

@@ -1,4 +1,4 @@
-//! Errors-in-variables calibration (SPEC §10): an augmented extended Kalman
+//! Errors-in-variables calibration (docs/method.md §9): an augmented extended Kalman
 //! filter that models the noise on the wheel inputs, fitted by Fisher
 //! scoring with exact derivatives.
 //!
@@ -45,7 +45,7 @@
 //! Windows are independent, run in parallel and are summed in window order,
 //! so the result does not depend on the number of threads.
 //!
-//! **Covariance mode** (`CovarianceMode`, a research option; SPEC §10 is ambiguous here).
+//! **Covariance mode** (`CovarianceMode`, a research option; the base formulation is ambiguous here).
 //! The covariance recursion (P, S, K) is linearised along the reference
 //! (reference heading, measured wheel rotations) at a θ:
 //! - following θ (the product's): at the current θ. S depends
@@ -113,7 +113,7 @@
 //! ```
 //!
 //! (m: 1 where the wheel(s) turn). With the covariance held, S does not
-//! depend on θ and `∂M/∂θ` is exactly the gradient of SPEC's corrected
+//! depend on θ and `∂M/∂θ` is exactly the gradient of the base formulation's corrected
 //! profile cost; with it following θ, θ uses `∂J/∂θ` (J = M without
 //! `½Σ log det S`, which biases t_r by +7 to +8 % when included) and η
 //! uses `∂M/∂η`.
@@ -273,7 +273,7 @@ research_use! {
     input::{EivInput, Window},
     lattice::quantisation_step_of_readings,
     modelling::{
-        BiasCorrection, FirstOrderBias, InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+        BiasCorrection, FirstOrderBias, InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, BASE_POSITION_FLOOR_M,
     },
     options::{CovarianceEstimate, CovarianceMode, NoiseEstimateTerm, ResearchOptions},
     report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},

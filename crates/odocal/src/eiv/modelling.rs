@@ -118,14 +118,15 @@ research_pub! {
 }
 
 research_pub! {
-    /// Default of [`ResearchOptions::position_floor_m`](crate::eiv::ResearchOptions::position_floor_m), m (SPEC §10 states 1 mm,
-    /// [`SPEC_POSITION_FLOOR_M`]; see that option for why 5 mm).
+    /// Default of [`ResearchOptions::position_floor_m`](crate::eiv::ResearchOptions::position_floor_m), m
+    /// (the base formulation in docs/method.md's Notes states 1 mm,
+    /// [`BASE_POSITION_FLOOR_M`]; see that option for why 5 mm).
     const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
 }
 
 research_pub! {
-    /// The position σ floor of SPEC §10, m.
-    const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
+    /// The position σ floor of the base formulation (docs/method.md, Notes), m.
+    const BASE_POSITION_FLOOR_M: f64 = 1e-3;
 }
 
 research_pub! {
@@ -151,7 +152,7 @@ research_pub! {
     #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
     #[serde(rename_all = "snake_case")]
     enum WheelNoiseScale {
-        /// σ·ñ, the measured rotation (SPEC §10).
+        /// σ·ñ, the measured rotation (docs/method.md §9).
         #[default]
         MeasuredInput,
         /// σ·n̂, `n̂ = n̄·C(θ_ref)/C(θ)` with n̄ the moving average of ñ over
@@ -295,8 +296,8 @@ struct FirstOrderBias {
 /// 2 %-white-noise drive and on one of 20 `coloured` drives (t_r +250 % /
 /// +230 %, flagged). Together with [`QuantisationModel::Measurement`] it is
 /// the best combination on every simulated preset with η estimated (paper
-/// t_r −1.2 %, high +4.1 %). With SPEC §10's cost (no input log-Jacobian
-/// term, `EivOptions::spec`) the noise-free straight drive stops at a
+/// t_r −1.2 %, high +4.1 %). With the cost of the base formulation in
+/// docs/method.md's Notes (no input log-Jacobian term, `EivOptions::spec`) the noise-free straight drive stops at a
 /// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
 /// lower clamp); with the default cost it does not (c_e to 1e-9). Unless
 /// convergence is also tested on the step that remains after the last

@@ -6,8 +6,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     BiasCorrection, HeadingScale, InnovationNull, InputJacobian, LateralNoise, NoiseModel, NoiseSource,
-    QuantisationLevel, QuantisationModel, SideslipNoise, WheelNoiseScale, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
-    DEFAULT_POSITION_FLOOR_M, NOISE_SOURCES, SPEC_POSITION_FLOOR_M,
+    QuantisationLevel, QuantisationModel, SideslipNoise, WheelNoiseScale, BASE_POSITION_FLOOR_M,
+    BIAS_BOOTSTRAP_SMOOTHING_SAMPLES, DEFAULT_POSITION_FLOOR_M, NOISE_SOURCES,
 };
 use crate::error::{Error, Result};
 use crate::model::param::ParamSet;
@@ -16,7 +16,7 @@ use crate::model::Theta;
 research_pub! {
     /// How the filter's covariance recursion (P, S, K) depends on θ.
     ///
-    /// SPEC §10 asks for both the profile cost `½ Σ νᵀS(θ)⁻¹ν` with S depending
+    /// The base formulation (docs/method.md, Notes) asks for both the profile cost `½ Σ νᵀS(θ)⁻¹ν` with S depending
     /// on θ through `F_n Σ_n F_nᵀ` and for Q held at a reference θ; the two
     /// differ exactly in whether `∂S/∂θ` is zero. See the module docs for the
     /// measured consequences.
@@ -108,7 +108,7 @@ research_pub! {
 /// heading drift's σ at least a third of the starting model's.
 const HEADING_DRIFT_MIN_ETA: f64 = -2.197_224_577_336_219_6;
 
-/// Options of the EIV calibration. Defaults follow SPEC §10.
+/// Options of the EIV calibration. Defaults as docs/method.md §9 states them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct EivOptions {
@@ -301,7 +301,7 @@ macro_rules! research_options {
             /// Floor of the reference's position noise σ in the filter's
             /// `R`, m (added in quadrature to the noise model's position
             /// white noise; it is not scaled by η). Default
-            /// [`DEFAULT_POSITION_FLOOR_M`], 5 mm (SPEC §10: 1 mm).
+            /// [`DEFAULT_POSITION_FLOOR_M`], 5 mm (the base formulation: 1 mm).
             ///
             /// Measured (12 km, seeds 1–20, the simulator's noise model
             /// fixed): on a perfect reference with 2 % white wheel noise the
@@ -727,7 +727,7 @@ impl EivOptions {
     }
 
     research_pub! {
-        /// The defaults with SPEC §10's formulation of the cost and of `R`: the
+        /// The defaults with the base formulation's cost and `R` (docs/method.md, Notes): the
         /// relative wheel noise scaled by the measured rotation, no input
         /// log-Jacobian term, the 1 mm position floor. The Cramér–Rao bound
         /// ([`cramer_rao_bound`](crate::eiv::cramer_rao_bound), the experiment's
@@ -738,7 +738,7 @@ impl EivOptions {
                 research: ResearchOptions {
                     wheel_noise_scale: WheelNoiseScale::MeasuredInput,
                     input_jacobian: InputJacobian::None,
-                    position_floor_m: SPEC_POSITION_FLOOR_M,
+                    position_floor_m: BASE_POSITION_FLOOR_M,
                     ..ResearchOptions::default()
                 },
                 ..EivOptions::default()

@@ -1,4 +1,4 @@
-//! The one batch Gauss-Newton loop (SPEC §4) behind
+//! The one batch Gauss-Newton loop (docs/method.md §4) behind
 //! [`crate::identify::batch_gauss_newton`], over θ alone (N = 4) and over
 //! θ with the reference extrinsics (N = 7, [[`Extrinsics`](crate::Extrinsics)]).
 //!

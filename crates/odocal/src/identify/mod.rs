@@ -1,4 +1,4 @@
-//! Gauss-Newton identification of θ (SPEC §4, paper §3).
+//! Gauss-Newton identification of θ (docs/method.md §4, paper §3).
 //!
 //! The public items are the options of the Gauss-Newton fits
 //! ([`IdentifyOptions`], set as [`crate::CalibrationOptions::identify`]) and
@@ -101,7 +101,7 @@ pub struct IdentifyOptions {
     /// The reference sensor's extrinsics (lever arm, heading offset): the
     /// initial value of those in [`IdentifyOptions::free`] and the held
     /// value of the others. Default 0 (the reference is the rear-axle
-    /// centre, aligned with the vehicle: SPEC §1). See [`Extrinsics`].
+    /// centre, aligned with the vehicle: docs/method.md §1). See [`Extrinsics`].
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Resolutions of the extrinsics for the observability check, `[lever_x
@@ -209,7 +209,7 @@ impl IdentifyOptions {
 
     /// True when the identification involves the reference extrinsics:
     /// some of them are free, or held at a value other than 0. Otherwise
-    /// the SPEC's θ-only path runs, unchanged.
+    /// the paper's θ-only path runs, unchanged.
     pub(crate) fn uses_extrinsics(&self) -> bool {
         !self.free.intersection(ParamSet::EXTRINSICS).is_empty() || !self.extrinsics.is_zero()
     }
@@ -358,7 +358,7 @@ research_pub! {
     /// Student-t with `G − 1` degrees of freedom is the fairer quantile).
     ///
     /// It does not know about bias: input noise biases batch Gauss-Newton
-    /// (SPEC §10), and an interval around a biased estimate can miss the truth
+    /// (docs/method.md §9), and an interval around a biased estimate can miss the truth
     /// however honest its width.
     ///
     /// ## References
@@ -650,7 +650,7 @@ pub(crate) fn observability_of_entries(
 }
 
 research_pub! {
-    /// Batch Gauss-Newton over segments from `theta0` (SPEC §4). With one
+    /// Batch Gauss-Newton over segments from `theta0` (docs/method.md §4). With one
     /// segment this is the paper's *pure* Gauss-Newton.
     ///
     /// Parameters that the data cannot determine are listed in
@@ -784,7 +784,7 @@ pub(crate) fn to_array4<const N: usize>(m: &SMatrix<f64, N, N>) -> [[f64; 4]; 4]
     std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))
 }
 
-/// The θ-only problem of the Gauss-Newton loop (SPEC §4).
+/// The θ-only problem of the Gauss-Newton loop (docs/method.md §4).
 struct ThetaProblem<'a> {
     weights: [f64; 3],
     opts: &'a IdentifyOptions,

@@ -1,6 +1,6 @@
 //! Reference-sensor extrinsics: where the pose reference sits on the vehicle.
 //!
-//! The odometry model (SPEC §1) moves the rear-axle centre with the vehicle
+//! The odometry model (docs/method.md §1) moves the rear-axle centre with the vehicle
 //! heading ψ. A real pose reference often measures another point with
 //! another heading: on the PSU mapping van it is the midpoint of two rear
 //! GNSS antennas, heading along their baseline. [`Extrinsics`] describes
@@ -14,7 +14,7 @@
 //! Identification and validation start each segment from the *axle* pose
 //! the reference implies ([`axle_pose`], the inverse map) and compare the
 //! model's *reference* pose ([`reference_pose`]) with the measured one. With
-//! every value 0 both maps are the identity and every result is the SPEC's.
+//! every value 0 both maps are the identity and every result is the paper's model (docs/method.md §1).
 //!
 //! Observability: the lever arm acts only through heading *changes* (on a
 //! drive that never turns, `R(ψ_k) − R(ψ_0) = 0` and it has no effect at
@@ -51,7 +51,7 @@ impl Extrinsics {
     /// `Default`; outside the crate: `Extrinsics::default()`).
     pub(crate) const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
 
-    /// True when every value is exactly 0 (the SPEC's reference).
+    /// True when every value is exactly 0 (the paper's reference point, the rear-axle centre).
     pub(crate) fn is_zero(&self) -> bool {
         self.to_array().iter().all(|v| *v == 0.0)
     }

@@ -1,4 +1,4 @@
-//! The wheel-odometry model (SPEC §1) and its analytic derivatives.
+//! The wheel-odometry model (docs/method.md §1) and its analytic derivatives.
 //!
 //! Expert API: for programs that run the model or its derivatives themselves
 //! (dead reckoning, their own estimator). [`crate::Theta`] is also at the root.
@@ -33,7 +33,7 @@ pub type State = Vector3<f64>;
 /// The calibrated parameters θ of the odometry model, SI units.
 ///
 /// Field names follow the paper's symbols because they are the stable JSON
-/// interface (SPEC §9); units are in each field's doc.
+/// interface (docs/reference.md); units are in each field's doc.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Theta {
     /// Effective rear wheel circumference c_e, metres per revolution.

@@ -1,4 +1,4 @@
-//! The drive simulator (SPEC §8): city and suburb routes with a known true θ.
+//! The drive simulator (docs/method.md §8): city and suburb routes with a known true θ.
 //!
 //! [`simulate`] with [`SimOptions`] makes a drive; the route, speed,
 //! vehicle and noise settings and the sidecar file are here too, for
@@ -183,7 +183,7 @@ fn check_drift(drift: &DriftOptions, start: &Theta, end: &Theta, duration_s: f64
     check.map_err(|e| invalid("drift", format!("θ at the end of the drive, {duration_s:.0} s, with the drift: {e}")))
 }
 
-/// Simulates one drive (SPEC §8).
+/// Simulates one drive (docs/method.md §8).
 ///
 /// The same options (seed included) give an identical drive, byte for byte
 /// when written as CSV. The measured columns carry the noise of

@@ -441,7 +441,7 @@ impl DriftOptions {
     }
 }
 
-/// Everything the simulator needs. [`SimOptions::paper`] holds the SPEC defaults.
+/// Everything the simulator needs. [`SimOptions::paper`] holds the defaults docs/method.md names.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SimOptions {
@@ -467,7 +467,7 @@ pub struct SimOptions {
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading
     /// `ψ + heading_offset` of the true axle pose, plus the reference noise
     /// ([`Extrinsics`]); the truth columns stay the axle's. Default 0
-    /// (the SPEC's reference; the output, sidecar included, is then
+    /// (the paper's reference; the output, sidecar included, is then
     /// byte-identical to a simulator without this setting).
     #[serde(skip_serializing_if = "Extrinsics::is_zero")]
     pub reference_mount: Extrinsics,
@@ -539,7 +539,7 @@ fn check_range(field: &'static str, r: [f64; 2], allow_zero: bool) -> Result<()>
 }
 
 impl SimOptions {
-    /// The SPEC defaults with the paper noise preset.
+    /// The defaults docs/method.md names, with the paper noise preset.
     pub fn paper(seed: u64) -> Self {
         SimOptions {
             seed,
@@ -556,7 +556,7 @@ impl SimOptions {
         }
     }
 
-    /// The SPEC defaults without any noise (measured == truth): the tests'
+    /// The defaults docs/method.md names, without any noise (measured == truth): the tests'
     /// `SimOptions { noise: "off".parse()?, ..SimOptions::paper(seed) }`.
     #[cfg(test)]
     pub(crate) fn noise_free(seed: u64) -> Self {

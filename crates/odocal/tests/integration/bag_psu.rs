@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 
 /// Yaw goes through a quaternion written from float64 (MCAP.md checks 1e-12).
 const YAW_TOL_RAD: f64 = 1e-12;
-/// The brief's tolerance on the wheel angle; the bag was written with the
-/// same float64 formula, so it is met with room.
+/// The tolerance on the wheel angle; the bag was written with the same
+/// float64 formula (MCAP.md), so it is met with room.
 const WHEEL_TOL_RAD: f64 = 1e-9;
 
 const JOINTS: &str = "/vehicle/wheel_joint_states";

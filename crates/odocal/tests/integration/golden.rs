@@ -3,8 +3,7 @@
 //! θ, covariance, every Ē_p (θ, θ_0, each step-1 batch θ_B,I) and the
 //! counts of both methods, with and without a hold-out, and a validation,
 //! are compared with `tests/data/golden/library.json`. That file was written
-//! by the code of main at commit 8f30b25 (before the calibration modules
-//! were split), so a refactor that changes a number fails here. To write it
+//! by the code of main at commit 8f30b25, so a refactor that changes a number fails here. To write it
 //! again (only for an intended change of the numbers, said in the commit):
 //! `ODOCAL_BLESS=1 cargo test -p odocal --test integration golden::`.
 

@@ -1,4 +1,4 @@
-//! The stage-wise, box-constrained QP of input compensation (SPEC §5), in
+//! The stage-wise, box-constrained QP of input compensation (docs/method.md §5), in
 //! deviation variables, and the solvers for it.
 //!
 //! Variables are deviations from the measurements: `w_k = n_k − ñ_k ∈ ℝ²`
@@ -441,10 +441,10 @@ impl FromStr for SolverKind {
 ///   (σ = 3 cm, 5 mrad) seen through the dynamics, plus a model mismatch
 ///   `m_k` along the heading of σ = 1 % of `v t_s`.
 /// - `δ_k = ñ_k − ñ_{k−1}` from the noisy wheel speeds.
-/// - Q = diag(1, 1, 10), R = diag(1000, 1000) (SPEC §5); bounds
+/// - Q = diag(1, 1, 10), R = diag(1000, 1000) (docs/method.md §5); bounds
 ///   `|z| ≤ [5, 5, 0.5]·s` and `|w| ≤ 0.05·|ñ_k|·s` with `s = 1 − tightness`.
 ///
-/// `tightness = 0` gives the SPEC boxes (rarely a bound active);
+/// `tightness = 0` gives the boxes of docs/method.md §5 (rarely a bound active);
 /// `tightness ≈ 0.9` activates many input bounds, `≈ 0.97` state bounds
 /// too; from about 0.98 on, some instances have no feasible point.
 /// Values of `tightness` are clamped to [0, 0.999].

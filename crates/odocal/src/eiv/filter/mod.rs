@@ -1,4 +1,4 @@
-//! The augmented extended Kalman filter of SPEC §10 over one window, with
+//! The augmented extended Kalman filter of docs/method.md §9 over one window, with
 //! its exact sensitivity recursion.
 //!
 //! State (12): `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, e_β, w_l, w_r]`:
@@ -81,7 +81,7 @@ pub(super) type M3x2 = SMatrix<f64, 3, 2>;
 /// State × 3 (gains, `P Hᵀ`).
 pub(super) type MZx3<const S: usize> = SMatrix<f64, S, 3>;
 
-/// Heading measurement noise floor (SPEC §10): keeps S regular on a perfect
+/// Heading measurement noise floor (docs/method.md §9): keeps S regular on a perfect
 /// reference (the position floor is [`Variances::position_floor_m`]).
 pub(super) const HEADING_FLOOR_RAD: f64 = 1e-5;
 

@@ -262,7 +262,7 @@ impl WindowSums {
         0.5 * (self.quad + self.logdet) + self.correction - self.correction_profile_only
     }
 
-    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10), plus
+    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (docs/method.md §9), plus
     /// the input log-Jacobian term when it is on.
     pub(crate) fn profile(&self) -> f64 {
         0.5 * self.quad + self.correction + self.jacobian

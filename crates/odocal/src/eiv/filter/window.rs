@@ -537,7 +537,7 @@ fn process_noise(
 }
 
 /// The initial covariance of a window and its derivatives over
-/// `p = [θ, η]` (SPEC §10): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
+/// `p = [θ, η]` (docs/method.md §9): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
 /// P_ss = diag(σ²)`, with counting quantisation `P_ww = q²/12·I` (the
 /// remainders before the first sample); it does not depend on θ.
 fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<S>, [MZ<S>; NP]) {

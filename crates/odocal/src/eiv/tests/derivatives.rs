@@ -307,8 +307,8 @@ fn fitted_input_scale_removes_the_growth_of_s_with_c_e() {
     let run = |t: &Theta, fitted: bool| {
         let mut v = wheels_only.variances(&[0.0; 6], input.sample_time_s);
         v.fitted_input = fitted;
-        // SPEC's 1 mm floor: with 5 mm, R dominates S_xx on this short window.
-        v.position_floor_m = SPEC_POSITION_FLOOR_M;
+        // The base formulation's 1 mm floor: with 5 mm, R dominates S_xx on this short window.
+        v.position_floor_m = BASE_POSITION_FLOOR_M;
         let mut rec = Vec::new();
         run_window(&input, &w, t, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
         rec

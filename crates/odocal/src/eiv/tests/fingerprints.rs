@@ -81,7 +81,8 @@ const RECORDED: [Recorded; 5] = [
     ),
 ];
 
-/// The options the cases were recorded with (SPEC §10's cost and floor, the
+/// The options the cases were recorded with (the cost and floor of the base
+/// formulation in docs/method.md's Notes, the
 /// heading tied to the position scale, quantisation as process noise, the η
 /// step undamped, θ and η stepping alternately to the end, no null pass
 /// of the innovation checks, the σ of H_θ⁻¹ alone without the

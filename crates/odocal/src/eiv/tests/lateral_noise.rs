@@ -71,8 +71,8 @@ fn the_floor_holds_a_y_where_the_tie_would_take_it_lower() {
 
 /// Random noise world 207 (clean wheels, 0.02 % white; an a_y with
 /// 0.146 m/s² of white noise): tied to the wheels' white noise, a_y's σ
-/// went to 0.6 mm/s², a_y was taken as exact and d, which multiplies it,
-/// was pulled toward 0: −9.6 σ on this 6 km drive. With the floor at the
+/// goes to 0.6 mm/s², a_y is taken as exact and d, which multiplies it, is
+/// pulled toward 0: −9.6 σ on this 6 km drive. With the floor at the
 /// readings' own noise d is within 2 σ, and the fitted model grants a_y
 /// the noise it has.
 #[test]

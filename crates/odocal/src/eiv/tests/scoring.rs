@@ -201,10 +201,10 @@ fn position_floor_enters_the_innovation_covariance() {
         run_window(&input, &w, &th, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
         rec
     };
-    let (a, b) = (run(SPEC_POSITION_FLOOR_M), run(0.005));
+    let (a, b) = (run(BASE_POSITION_FLOOR_M), run(0.005));
     assert!(!a.is_empty() && a.len() == b.len());
     // The first update: P⁻ = P₀ + Q with P₀ = R, so S = 2R + H Q Hᵀ.
-    let want = 2.0 * (0.005f64.powi(2) - SPEC_POSITION_FLOOR_M.powi(2));
+    let want = 2.0 * (0.005f64.powi(2) - BASE_POSITION_FLOOR_M.powi(2));
     for c in 0..2 {
         let got = b[0].s[(c, c)] - a[0].s[(c, c)];
         assert!((got - want).abs() <= 1e-12, "S[{c},{c}] grew by {got:e}, want {want:e}");
@@ -223,7 +223,7 @@ fn position_floor_enters_the_innovation_covariance() {
 
 /// The separate heading scale, with every quantisation model, returns
 /// c_e on the noise-free straight drive (the other options the defaults).
-/// Regression: with the SPEC formulation's input log-Jacobian
+/// Regression: with the base formulation's input log-Jacobian
 /// ([`InputJacobian::None`]) the θ/η iteration stops after two iterations
 /// at a second fixed point, c_e −0.057 % with η held well above its lower
 /// clamp; with [`InputJacobian::FilterShare`]
@@ -248,9 +248,9 @@ fn separate_heading_scale_calibrates_c_e_on_the_noise_free_straight_drive() {
 /// The η step is a descent direction of the marginal likelihood M, so step
 /// halving can always lower M. Regression: at this point of the noise-free
 /// straight drive (heading scale separate; where the fit from c_e = 1.96
-/// stood after one iteration) the scoring step of the variances, mapped to
-/// η by ln(1 + d) and clamped, pointed uphill (gᵀΔη = +249) and every
-/// halving was rejected, so the fit stopped with c_e 0.06 % off.
+/// stands after one iteration) the scoring step of the variances, mapped
+/// to η by ln(1 + d) and clamped, points uphill (gᵀΔη = +249): every
+/// halving would be rejected and the fit would stop with c_e 0.06 % off.
 #[test]
 fn eta_step_descends_on_the_noise_free_straight_drive() {
     let (n, ts) = (4000, 0.025);

@@ -621,7 +621,7 @@ impl LateralAccelerationSpec {
 }
 
 /// The road bank (`[lateral_acceleration.bank]`): a derived a_y is the
-/// *kinematic* acceleration v·ω, but the load transfer of SPEC (3a,b)
+/// *kinematic* acceleration v·ω, but the load transfer of docs/method.md (3a,b)
 /// follows the lateral *specific force* in the vehicle frame,
 /// f_y = a_y·cos φ − g·sin φ on a road rolled by φ (positive when the
 /// left side is lower). The roll φ is measured by two GNSS antennas across

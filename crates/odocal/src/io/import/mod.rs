@@ -47,7 +47,7 @@
 //!
 //! 6. **Reference measured**: the output sample nearest to each accepted
 //!    pose sample (within half an output step) is marked as carrying a real
-//!    reference measurement ([`Drive::reference_measured`], SPEC §2
+//!    reference measurement ([`Drive::reference_measured`], docs/method.md §2
 //!    `ref_measured`); the others are interpolated between measurements.
 //!
 //! ## Code layout
@@ -280,7 +280,7 @@ pub fn is_manifest_path(path: &Path) -> bool {
     path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml"))
 }
 
-/// Reads a drive from either a canonical CSV (SPEC §2) or a `.toml` manifest
+/// Reads a drive from either a canonical CSV (docs/method.md §2) or a `.toml` manifest
 /// (imported with [`import`]); the report is `Some` for a manifest.
 ///
 /// ```
