@@ -13,6 +13,7 @@ mod careless;
 mod cli;
 mod commands;
 mod data_safety;
+mod docs_quotes;
 mod eiv;
 mod experiment;
 mod extrinsics;
