@@ -453,6 +453,18 @@ enum Flat {
     Other(&'static str),
 }
 
+impl Flat {
+    /// What the value is, for a message.
+    fn describe(&self) -> String {
+        match self {
+            Flat::Number(x) => format!("the number {x}"),
+            Flat::Bool(b) => format!("{b}"),
+            Flat::Text(t) => format!("the text '{}'", crate::drive::echo(t)),
+            Flat::Other(what) => (*what).to_string(),
+        }
+    }
+}
+
 /// The extrinsics' names, units and descriptions, in [`Param::EXTRINSICS`] order.
 const EXTRINSIC_INFO: [(&str, &str, &str); 3] = [
     ("lever_x", "m", "pose reference lever arm from the rear-axle centre, forward"),
@@ -610,6 +622,9 @@ impl ParamFile {
             if let Some(s) = sigma.filter(|s| *s < 0.0) {
                 return Err(format!("key `{name}_sigma`: {s} is negative"));
             }
+            if let Some(held) = get(&format!("{name}_held")).filter(|v| !matches!(v, Flat::Bool(_))) {
+                return Err(format!("key `{name}_held`: {}, not true or false", held.describe()));
+            }
             let not_observable = match get(&format!("{name}_observable")) {
                 None | Some(Flat::Bool(true)) => false,
                 Some(Flat::Bool(false)) => true,
@@ -628,6 +643,18 @@ impl ParamFile {
             Some(Flat::Text(t)) => Some(t.clone()),
             _ => None,
         };
+        for (k, v) in &flat {
+            let text = matches!(v, Flat::Text(_));
+            match k.split(['[', '.']).next() {
+                Some("verdict") if !(k == "verdict" && text) => {
+                    return Err(format!("key `{k}`: {}; `verdict` is text", v.describe()));
+                }
+                Some("verdict_reasons") if !(k.starts_with("verdict_reasons[") && text) => {
+                    return Err(format!("key `{k}`: {}; `verdict_reasons` is a list of texts", v.describe()));
+                }
+                _ => {}
+            }
+        }
         let verdict = text("verdict");
         let verdict_reasons = flat
             .iter()
@@ -786,7 +813,7 @@ const JSON_SCHEMA_VERSION: u64 = 1;
 /// may mean something else; one without (hand-written) is read.
 fn flat_json(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
     use serde_json::Value;
-    let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    let v = serde_json::from_str::<NoDuplicateKeys>(text).map_err(|e| format!("not JSON: {e}"))?.0;
     match v.get("schema_version") {
         None => {}
         Some(x) if x.as_u64() == Some(JSON_SCHEMA_VERSION) => {}
@@ -816,16 +843,79 @@ fn flat_json(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), S
         _ => Flat::Other("not a value"),
     };
     let mut out: Vec<(String, Flat)> = params.iter().map(|(k, x)| (k.clone(), flat_of(x))).collect();
-    if let Some(s) = v.get("verdict").and_then(Value::as_str) {
-        out.push(("verdict".into(), Flat::Text(s.into())));
+    if let Some(x) = v.get("verdict") {
+        out.push(("verdict".into(), flat_of(x)));
     }
-    if let Some(a) = v.get("verdict_reasons").and_then(Value::as_array) {
-        out.extend(a.iter().enumerate().map(|(i, x)| (format!("verdict_reasons[{i}]"), flat_of(x))));
+    match v.get("verdict_reasons") {
+        None => {}
+        Some(Value::Array(a)) => {
+            out.extend(a.iter().enumerate().map(|(i, x)| (format!("verdict_reasons[{i}]"), flat_of(x))))
+        }
+        Some(_) => return Err("key `verdict_reasons`: not a list; `verdict_reasons` is a list of texts".into()),
     }
     if let Some(o) = v.get("provenance").and_then(Value::as_object) {
         out.extend(o.iter().map(|(k, x)| (format!("provenance.{k}"), flat_of(x))));
     }
     Ok((node, out))
+}
+
+/// A JSON value whose objects have no key twice. `serde_json::Value` keeps
+/// the last of repeated keys; in a parameter file the first `c_e` and the
+/// second cannot both be meant, so the reader refuses the file instead
+/// (the YAML reader refuses repeated keys too).
+struct NoDuplicateKeys(serde_json::Value);
+
+impl<'de> serde::Deserialize<'de> for NoDuplicateKeys {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        d.deserialize_any(NoDuplicateKeysVisitor).map(NoDuplicateKeys)
+    }
+}
+
+struct NoDuplicateKeysVisitor;
+
+impl<'de> serde::de::Visitor<'de> for NoDuplicateKeysVisitor {
+    type Value = serde_json::Value;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a JSON value")
+    }
+    fn visit_bool<E>(self, b: bool) -> std::result::Result<Self::Value, E> {
+        Ok(b.into())
+    }
+    fn visit_i64<E>(self, x: i64) -> std::result::Result<Self::Value, E> {
+        Ok(x.into())
+    }
+    fn visit_u64<E>(self, x: u64) -> std::result::Result<Self::Value, E> {
+        Ok(x.into())
+    }
+    fn visit_f64<E>(self, x: f64) -> std::result::Result<Self::Value, E> {
+        Ok(serde_json::Number::from_f64(x).map_or(serde_json::Value::Null, serde_json::Value::Number))
+    }
+    fn visit_str<E>(self, t: &str) -> std::result::Result<Self::Value, E> {
+        Ok(t.into())
+    }
+    fn visit_unit<E>(self) -> std::result::Result<Self::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Self::Value, A::Error> {
+        let mut out = Vec::new();
+        while let Some(NoDuplicateKeys(x)) = seq.next_element()? {
+            out.push(x);
+        }
+        Ok(out.into())
+    }
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> std::result::Result<Self::Value, A::Error> {
+        let mut out = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            if out.contains_key(&key) {
+                let key = crate::drive::echo(&key);
+                return Err(serde::de::Error::custom(format!("the key `{key}` twice in one object")));
+            }
+            let NoDuplicateKeys(x) = map.next_value()?;
+            out.insert(key, x);
+        }
+        Ok(out.into())
+    }
 }
 
 fn yaml_f64(v: f64) -> String {
@@ -1043,6 +1133,36 @@ mod tests {
                 &["c_e = 1e300 m is outside 0.05 … 20 m"],
             ),
             ("r.json", "{\"theta\": {\"c_e\": 1.95}}", &["a `calibrate --json` report?", "--params-out"]),
+            (
+                "p.json",
+                "{\"parameters\": {\"c_e\": 1.95, \"c_d\": 0, \"t_r\": 1.5, \"d\": 0, \"c_e\": 3}}",
+                &["the key `c_e` twice", "line 1 column"],
+            ),
+            (
+                "p.json",
+                "{\"parameters\": {\"c_e\": 1.95, \"c_d\": 0, \"t_r\": 1.5, \"d\": 0, \"c_e_held\": 7}}",
+                &["key `c_e_held`: the number 7, not true or false"],
+            ),
+            (
+                "p.json",
+                "{\"parameters\": {\"c_e\": 1.95, \"c_d\": 0, \"t_r\": 1.5, \"d\": 0}, \"verdict\": 5}",
+                &["key `verdict`: the number 5; `verdict` is text"],
+            ),
+            (
+                "p.json",
+                "{\"parameters\": {\"c_e\": 1.95, \"c_d\": 0, \"t_r\": 1.5, \"d\": 0}, \"verdict_reasons\": \"x\"}",
+                &["key `verdict_reasons`: not a list"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_d: 0.0\n    t_r: 1.5\n    d: 0.0\n    verdict: [1]\n",
+                &["key `verdict[0]`"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_d: 0.0\n    t_r: 1.5\n    d: 0.0\n    t_r_held: yes\n",
+                &["key `t_r_held`: the text 'yes', not true or false"],
+            ),
             ("p.txt", "c_e: 1.95", &["use the .yaml, .yml or .json file"]),
         ] {
             let e = read_text(name, text).expect_err(text).to_string();
