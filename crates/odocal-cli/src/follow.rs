@@ -52,9 +52,10 @@ pub struct FollowArgs {
     /// update is written.
     #[arg(long, default_value_t = 10.0, value_name = "S", help_heading = GATES)]
     steady_s: f64,
-    /// Weight of one segment's normal equations, 1e-6 to 1 [default: 0.005].
+    /// A segment's weight, 1e-6 to 1 [default: 0.005].
     ///
-    /// Smaller values make the estimate average over more segments
+    /// The weight of one segment's normal equations. Smaller values make
+    /// the estimate average over more segments
     /// (steadier, slower to follow a change).
     #[arg(long, value_name = "F", help_heading = ONLINE)]
     information_scale: Option<f64>,
