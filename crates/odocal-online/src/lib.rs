@@ -78,10 +78,7 @@ use odocal::{dead_reckoning, Drive, Error, Extrinsics, Result, Signals, StreamCh
 pub mod gate;
 mod options;
 
-pub use options::{
-    OnlineOptions, RandomWalk, INFORMATION_SCALE_RANGE, MAX_ITERATIONS_PER_SEGMENT, MAX_RANDOM_WALK,
-    MAX_RECENT_VALIDATION_SEGMENTS, PRIOR_SD_RANGE,
-};
+pub use options::*;
 
 type Vec5 = SVector<f64, 5>;
 type Mat5 = SMatrix<f64, 5, 5>;
