@@ -52,9 +52,10 @@ pub struct FollowArgs {
     /// update is written.
     #[arg(long, default_value_t = 10.0, value_name = "S", help_heading = GATES)]
     steady_s: f64,
-    /// Weight of one segment's normal equations [default: 0.005].
+    /// A segment's weight, 1e-6 to 1 [default: 0.005].
     ///
-    /// Smaller values make the estimate average over more segments
+    /// The weight of one segment's normal equations. Smaller values make
+    /// the estimate average over more segments
     /// (steadier, slower to follow a change).
     #[arg(long, value_name = "F", help_heading = ONLINE)]
     information_scale: Option<f64>,
@@ -87,11 +88,13 @@ struct ExpertArgs {
     /// The parameters' random walk: sd after one hour of driving of
     /// c_e (fraction), c_d (m), t_r (m), d (m/(m/s²)) [default: 7e-4,2.5e-4,5e-3,2.5e-4].
     ///
-    /// How fast θ may drift; 0 holds a parameter constant.
+    /// How fast θ may drift; 0 holds a parameter constant; at most
+    /// 0.1,0.05,1,0.05.
     #[arg(long, allow_hyphen_values = true, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
     random_walk: Option<Four>,
     /// θ's sd when the history holds no σ for the vehicle: c_e (fraction),
-    /// c_d (m), t_r (fraction), d (m/(m/s²)) [default: 0.02,5e-3,0.05,2e-3].
+    /// c_d (m), t_r (fraction), d (m/(m/s²)), each from 1e-6 to 0.5,0.05,0.5,0.05
+    /// [default: 0.02,5e-3,0.05,2e-3].
     #[arg(long, allow_hyphen_values = true, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
     prior_sd: Option<Four>,
     /// The reference heading offset's sd at the start of each drive, rad [default: 0.05].
@@ -107,7 +110,7 @@ struct ExpertArgs {
     /// Informative driving over which θ's track is kept for the steadiness gate, s [default: 120].
     #[arg(long, value_name = "S", help_heading = ONLINE, hide_short_help = true)]
     steady_window_s: Option<f64>,
-    /// Validation segments of the held-out gate (the drive's most recent) [default: 3].
+    /// Validation segments of the held-out gate (the drive's most recent), 1 to 10000 [default: 3].
     #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true, value_parser = crate::args::whole::<usize>)]
     recent_validation_segments: Option<usize>,
     /// Largest σ written of c_e (fraction), c_d (m), t_r (m), d (m/(m/s²))
@@ -143,6 +146,14 @@ impl std::str::FromStr for Four {
 /// recorded in the history, and `--json` (and `--params-out -`) still
 /// get what was done, the JSON with the error and the drive it stopped at.
 pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
+    // The options' values first: a value out of its range is a usage
+    // error, whatever else the command line holds.
+    if !(a.steady_s.is_finite() && a.steady_s >= 0.0) {
+        let why = format!("--steady-s must be a non-negative number of seconds, got {}", a.steady_s);
+        return Err(odocal::Error::InvalidFlags(why).into());
+    }
+    let opts =
+        FollowOptions { theta0: a.theta0.as_ref().map(|t| t.theta), online: online_options(&a)?, gates: gates(&a)? };
     crate::output::refuse_stdout("--db", &a.db, "the history is a database file")?;
     let mut files = Files::default();
     for p in &a.drive {
@@ -156,16 +167,10 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         .output("--json", a.json.as_deref())
         .output("--params-out", a.params_out.as_deref());
     files.check()?;
-    if !(a.steady_s.is_finite() && a.steady_s >= 0.0) {
-        let why = format!("--steady-s must be a non-negative number of seconds, got {}", a.steady_s);
-        return Err(odocal::Error::InvalidFlags(why).into());
-    }
     // A drive that is not there is named before the history is opened (and created).
     if let Some(p) = a.drive.iter().find(|p| !p.exists()) {
         bail!("{}: no such drive file", p.display());
     }
-    let opts =
-        FollowOptions { theta0: a.theta0.as_ref().map(|t| t.theta), online: online_options(&a)?, gates: gates(&a)? };
     let mut db = History::open_to_write(&a.db)?;
     // With an output on stdout (`--json -`, `--params-out -`) the text
     // report goes to stderr, so stdout holds that output alone.

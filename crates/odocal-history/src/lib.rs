@@ -510,6 +510,21 @@ fn open_err(path: &Path) -> impl Fn(rusqlite::Error) -> Error {
     }
 }
 
+/// Why `path`, when it exists, is no file a history can be kept in: a
+/// folder, or not a regular file (a FIFO, a device, a socket; a symbolic
+/// link counts as its target). `None` for a regular file or a path where
+/// nothing is.
+fn not_a_regular_file(path: &Path) -> Option<String> {
+    let m = std::fs::metadata(path).ok()?;
+    if m.is_dir() {
+        Some(format!("a folder, not a file ({NOT_A_HISTORY})"))
+    } else if !m.is_file() {
+        Some(format!("not a regular file (a FIFO, device or socket), so no history database ({NOT_A_HISTORY})"))
+    } else {
+        None
+    }
+}
+
 /// What to give instead of a file that is no history database.
 const NOT_A_HISTORY: &str =
     "give the file that calibrate --vehicle or follow record in, or the name of a new file to start a history";
@@ -591,16 +606,27 @@ const NOW: &str = "strftime('%Y-%m-%dT%H:%M:%fZ', 'now')";
 
 impl History {
     /// Opens (creating if need be) the history at `path`, switches it to
-    /// WAL mode and brings its schema to this odocal's version. A file
-    /// written by a newer odocal (a higher schema version) is refused.
+    /// WAL mode and brings its schema to this odocal's version. A history
+    /// is created only in a new or empty file (or an SQLite database
+    /// without tables); an SQLite file that is no history (another
+    /// application's tables, an `application_id`, a schema version without
+    /// the history's tables) is refused before anything in it changes, as
+    /// are a file that is not a regular file and one written by a newer
+    /// odocal (a higher schema version).
+    ///
+    /// # Errors
+    /// [`Error::History`] naming the file and what to give.
     pub fn open(path: impl AsRef<Path>) -> Result<History> {
         let path = path.as_ref().to_path_buf();
-        if path.is_dir() {
-            return Err(Error::History { path, reason: format!("a folder, not a file ({NOT_A_HISTORY})") });
+        if let Some(reason) = not_a_regular_file(&path) {
+            return Err(Error::History { path, reason });
         }
         let err = open_err(&path);
         let mut conn = Connection::open(&path).map_err(&err)?;
         conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
+        if let schema::Found::Foreign(what) = schema::inspect(&conn).map_err(&err)? {
+            return Err(Error::History { path, reason: format!("{what}, not an odocal history ({NOT_A_HISTORY})") });
+        }
         // WAL: readers do not block the writer and a crash mid-write leaves
         // the last committed state. Setting it needs a moment of exclusive
         // access; the busy timeout covers a concurrent opener.
@@ -644,8 +670,10 @@ impl History {
     pub fn open_read_only(path: impl AsRef<Path>) -> Result<History> {
         let path = path.as_ref().to_path_buf();
         let refuse = |reason: String| Error::History { path: path.clone(), reason };
+        if let Some(reason) = not_a_regular_file(&path) {
+            return Err(refuse(reason));
+        }
         match std::fs::metadata(&path) {
-            Ok(m) if m.is_dir() => return Err(refuse(format!("a folder, not a file ({NOT_A_HISTORY})"))),
             Ok(m) if m.len() == 0 => {
                 return Err(refuse(format!("an empty file, not a history database ({NOT_A_HISTORY})")))
             }

@@ -94,9 +94,71 @@ pub(super) fn check_not_newer(version: i64) -> Result<(), String> {
     Ok(())
 }
 
+/// What the history's opening finds in an SQLite file before it changes
+/// anything.
+pub(super) enum Found {
+    /// A new or empty database (no tables, schema version 0): a history
+    /// is created in it.
+    Empty,
+    /// A history: the tables `calibrations` and `decisions` and a schema
+    /// version from 1 to [`SCHEMA_VERSION`].
+    History,
+    /// Not an odocal history; the reason names what it holds.
+    Foreign(String),
+}
+
+/// Looks at the file on `conn` without changing it: its schema version,
+/// its `application_id` (odocal sets none) and the tables it holds.
+pub(super) fn inspect(conn: &Connection) -> rusqlite::Result<Found> {
+    let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+    let application_id: i64 = conn.query_row("PRAGMA application_id", [], |r| r.get(0))?;
+    let mut st = conn.prepare(
+        "SELECT name FROM sqlite_master WHERE type IN ('table', 'view') AND name NOT LIKE 'sqlite\\_%' ESCAPE '\\' \
+         ORDER BY name",
+    )?;
+    let tables = st.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<String>>>()?;
+    let has = |name: &str| tables.iter().any(|t| t == name);
+    // Names from the file, echoed escaped and cut.
+    let named = || {
+        let shown: Vec<String> = tables.iter().take(5).map(|t| format!("'{}'", cut(t))).collect();
+        let more = tables.len().saturating_sub(5);
+        let more = if more > 0 { format!(" and {more} more") } else { String::new() };
+        format!("{}{more}", shown.join(", "))
+    };
+    Ok(if application_id != 0 {
+        Found::Foreign(format!("an SQLite file of another application (application_id {application_id:#x})"))
+    } else if version == 0 && tables.is_empty() {
+        Found::Empty
+    } else if version == 0 {
+        Found::Foreign(format!("an SQLite file of another application (its tables: {})", named()))
+    } else if version > SCHEMA_VERSION {
+        // The schema version of a newer odocal's, refused by its own message.
+        Found::History
+    } else if has("calibrations") && has("decisions") {
+        Found::History
+    } else {
+        let held = if tables.is_empty() { "no tables".to_string() } else { format!("its tables: {}", named()) };
+        Found::Foreign(format!(
+            "an SQLite file of schema version {version} without a history's tables calibrations and decisions \
+             ({held}): another application's file, or a damaged history"
+        ))
+    })
+}
+
+/// A name read from a file as a message shows it: control characters
+/// escaped, at most 40 characters.
+fn cut(name: &str) -> String {
+    let mut s: String = name.chars().take(40).collect::<String>().escape_debug().to_string();
+    if name.chars().count() > 40 {
+        s.push('…');
+    }
+    s
+}
+
 /// Brings the database to [`SCHEMA_VERSION`], each migration in its own
 /// immediate transaction (so two processes opening a new file at once
-/// migrate it once). `Err` holds the reason.
+/// migrate it once). A migration that fails says the file is not an
+/// odocal history or a damaged one. `Err` holds the reason.
 pub(super) fn migrate(conn: &mut Connection) -> Result<(), String> {
     loop {
         let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate).map_err(|e| e.to_string())?;
@@ -107,7 +169,13 @@ pub(super) fn migrate(conn: &mut Connection) -> Result<(), String> {
         }
         // `version` is in 0..SCHEMA_VERSION here.
         let sql = MIGRATIONS[version as usize];
-        tx.execute_batch(sql).map_err(|e| format!("migration to schema version {}: {e}", version + 1))?;
+        tx.execute_batch(sql).map_err(|e| {
+            format!(
+                "migration to schema version {} failed ({e}): not an odocal history of schema version {version}, \
+                 or a damaged one",
+                version + 1
+            )
+        })?;
         tx.pragma_update(None, "user_version", version + 1).map_err(|e| e.to_string())?;
         tx.commit().map_err(|e| e.to_string())?;
     }

@@ -43,6 +43,69 @@ fn a_file_or_folder_that_is_no_history_says_what_to_give() {
     assert_eq!(std::fs::read_to_string(&csv).expect("read"), text);
 }
 
+/// An SQLite file of another application given as `--db` is refused by
+/// name before anything in it changes: its tables, schema version and
+/// journal mode stay as they were, and the reader refuses it alike.
+#[test]
+fn an_sqlite_file_of_another_application_is_refused_and_left_as_it_was() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (name, setup, what) in [
+        ("app.db", "CREATE TABLE users (x);", "another application (its tables: 'users')"),
+        ("app3.db", "CREATE TABLE users (x); PRAGMA user_version = 3;", "schema version 3 without a history's tables"),
+        ("bare3.db", "PRAGMA user_version = 3;", "schema version 3 without a history's tables"),
+        ("id.db", "PRAGMA application_id = 1234;", "another application (application_id 0x4d2)"),
+    ] {
+        let path = dir.path().join(name);
+        let conn = Connection::open(&path).expect("open");
+        conn.execute_batch(setup).expect("setup");
+        drop(conn);
+        let before = std::fs::read(&path).expect("read");
+        let e = History::open(&path).map(|_| ()).expect_err("not a history").to_string();
+        assert!(e.starts_with(&format!("{}: history database: ", path.display())), "{e}");
+        assert!(e.contains(what) && e.contains("not an odocal history"), "{e}");
+        assert!(e.contains("the name of a new file to start a history"), "{e}");
+        assert_eq!(std::fs::read(&path).expect("read"), before, "{name} changed");
+        assert!(!dir.path().join(format!("{name}-wal")).exists(), "{name} switched to WAL");
+        assert!(History::open_read_only(&path).is_err());
+    }
+}
+
+/// A history whose migration fails (a damaged file: a column the
+/// migration adds is there already) says so, naming the file.
+#[test]
+fn a_failed_migration_says_the_file_is_damaged_or_no_history() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let conn = Connection::open(&path).expect("open");
+    for sql in &schema::MIGRATIONS[..4] {
+        conn.execute_batch(sql).expect("migration");
+    }
+    conn.pragma_update(None, "user_version", 3).expect("pragma");
+    drop(conn);
+    let e = History::open(&path).map(|_| ()).expect_err("damaged").to_string();
+    assert!(
+        e.starts_with(&format!("{}: history database: migration to schema version 4 failed", path.display())),
+        "{e}"
+    );
+    assert!(e.contains("not an odocal history of schema version 3, or a damaged one"), "{e}");
+}
+
+/// A FIFO or a device given as the history is named as not a regular
+/// file, by the writer and the reader, without opening it.
+#[test]
+fn a_fifo_or_device_is_not_a_regular_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fifo = dir.path().join("fifo");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(made.success());
+    for path in [fifo.as_path(), Path::new("/dev/null")] {
+        for e in [History::open(path).map(|_| ()), History::open_read_only(path).map(|_| ())] {
+            let e = e.expect_err("not a file").to_string();
+            assert!(e.contains("not a regular file") && !e.contains("empty"), "{e}");
+        }
+    }
+}
+
 #[test]
 fn an_empty_file_is_migrated_to_the_current_schema() {
     let dir = tempfile::tempdir().expect("tempdir");

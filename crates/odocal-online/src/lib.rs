@@ -78,7 +78,7 @@ use odocal::{dead_reckoning, Drive, Error, Extrinsics, Result, Signals, StreamCh
 pub mod gate;
 mod options;
 
-pub use options::{OnlineOptions, RandomWalk, MAX_ITERATIONS_PER_SEGMENT};
+pub use options::*;
 
 type Vec5 = SVector<f64, 5>;
 type Mat5 = SMatrix<f64, 5, 5>;

@@ -1,5 +1,7 @@
 //! Options of the online calibration.
 
+use std::ops::RangeInclusive;
+
 use serde::{Deserialize, Serialize};
 
 use odocal::segment::{SegmentOptions, ValidationSegmentOptions};
@@ -7,7 +9,8 @@ use odocal::{Error, Result, Theta};
 
 /// How fast the parameters may drift: the standard deviation of a random
 /// walk per parameter after one hour of driving (its variance grows
-/// linearly with driving time).
+/// linearly with driving time). Each from 0 (the parameter held
+/// constant) to its [`MAX_RANDOM_WALK`].
 ///
 /// The defaults are the between-run spread measured on the shipped
 /// test-track runs of one van on one afternoon (docs/validation.md):
@@ -61,7 +64,8 @@ pub struct OnlineOptions {
     pub weights: [f64; 3],
     /// θ's sd when the calibration starts without one. Default
     /// `[2 % of c_e, 5 mm, 5 % of t_r, 2 mm/(m/s²)]`: about the spread of
-    /// datasheet values around a vehicle's own.
+    /// datasheet values around a vehicle's own. Each within its
+    /// [`PRIOR_SD_RANGE`].
     pub prior_relative_c_e: f64,
     /// `c_d`'s prior sd, m. Default 5e-3.
     pub prior_c_d_m: f64,
@@ -85,6 +89,7 @@ pub struct OnlineOptions {
     /// independent; they are not (a segment's residuals integrate the same
     /// input noise, and a drive's segments share its slowly varying
     /// errors), and a larger weight makes θ follow each segment's noise.
+    /// Within [`INFORMATION_SCALE_RANGE`].
     /// Default 0.005, chosen on the six shipped test-track runs replayed in
     /// order (prequential Ē_p of runs 2–6, m: 1.85 at 0.15, 1.57 at 0.05,
     /// 1.39 at 0.02, 1.28 at 0.01, 1.24 at 0.005, 1.23 at 0.002;
@@ -104,7 +109,8 @@ pub struct OnlineOptions {
     /// on seeds 7–12 (docs/validation.md).
     pub sigma_factors: [f64; 4],
     /// Completed validation segments kept for the held-out comparison of
-    /// the write-back gates. Default 3.
+    /// the write-back gates. Default 3; at most
+    /// [`MAX_RECENT_VALIDATION_SEGMENTS`].
     pub recent_validation_segments: usize,
     /// Informative time over which θ's track is kept for the steadiness
     /// gate, s. Default 120.
@@ -116,6 +122,57 @@ pub struct OnlineOptions {
 /// iterate settles in a few, and every iteration costs a segment's
 /// Jacobian, so a count beyond this only makes a replay run for days.
 pub const MAX_ITERATIONS_PER_SEGMENT: usize = 100;
+
+/// The range of [`OnlineOptions::information_scale`]: 0.15 (the default
+/// stride over the default length) counts each sample once; 1 counts it
+/// as often as the segments overlap it (6.5 times), beyond which a
+/// segment's noise moves θ more than its samples can; below 10⁻⁶ (5000
+/// times less than the default) a day of driving moves θ by next to
+/// nothing.
+pub const INFORMATION_SCALE_RANGE: RangeInclusive<f64> = 1e-6..=1.0;
+
+/// The largest [`RandomWalk`] sd after one hour, per parameter `[c_e
+/// (fraction of c_e), c_d (m), t_r (m), d (m/(m/s²))]`: 140 to 200 times
+/// the defaults (the spread between runs of one van). A walk beyond them
+/// lets the prior of earlier drives count for nothing within a segment.
+pub const MAX_RANDOM_WALK: [f64; 4] = [0.1, 0.05, 1.0, 0.05];
+
+/// The range of θ's prior sd, per parameter `[c_e (fraction of c_e), c_d
+/// (m), t_r (fraction of t_r), d (m/(m/s²))]`
+/// ([`OnlineOptions::prior_relative_c_e`] and the three after it): from
+/// 10⁻⁶ (a parameter as good as known) to about the span of the
+/// parameter's physical limits (c_e and t_r: half their value; c_d and d:
+/// 5 cm, 0.05 m/(m/s²)), 10 to 25 times the defaults.
+pub const PRIOR_SD_RANGE: [RangeInclusive<f64>; 4] = [1e-6..=0.5, 1e-6..=0.05, 1e-6..=0.5, 1e-6..=0.05];
+
+/// The most [`OnlineOptions::recent_validation_segments`]: the validation
+/// segments of 45 hours of driving at the default stride (650 samples at
+/// 40 Hz), more than any one drive holds.
+pub const MAX_RECENT_VALIDATION_SEGMENTS: usize = 10_000;
+
+/// The names of θ's parameters in messages, in `[c_e, c_d, t_r, d]` order,
+/// with the unit of an sd of each in [`RandomWalk`] and the prior.
+const SD_UNITS: [(&str, &str, &str); 4] = [
+    ("c_e", "a fraction of c_e", "a fraction of c_e"),
+    ("c_d", "m", "m"),
+    ("t_r", "m", "a fraction of t_r"),
+    ("d", "m/(m/s²)", "m/(m/s²)"),
+];
+
+/// `a … b` as a message shows a range.
+fn shown(r: &RangeInclusive<f64>) -> String {
+    format!("{} … {}", num(*r.start()), num(*r.end()))
+}
+
+/// A number as a message shows it: in exponent notation outside
+/// 10⁻⁴ … 10⁹ (`1e308` and `1e-6` stay short), else as Rust prints it.
+fn num(v: f64) -> String {
+    if v.is_finite() && v != 0.0 && !(1e-4..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        v.to_string()
+    }
+}
 
 impl Default for OnlineOptions {
     fn default() -> Self {
@@ -145,11 +202,19 @@ impl OnlineOptions {
     pub(crate) fn validate(&self) -> Result<()> {
         self.segments.validate()?;
         self.validation.validate()?;
-        let positive = [
+        let prior = [
             ("prior_relative_c_e", self.prior_relative_c_e),
             ("prior_c_d_m", self.prior_c_d_m),
             ("prior_relative_t_r", self.prior_relative_t_r),
             ("prior_d", self.prior_d),
+        ];
+        for (((field, v), range), (name, _, unit)) in prior.into_iter().zip(&PRIOR_SD_RANGE).zip(SD_UNITS) {
+            if !range.contains(&v) {
+                let reason = format!("{name}'s prior sd {} is outside {} ({unit})", num(v), shown(range));
+                return Err(Error::InvalidOption { field, reason });
+            }
+        }
+        let positive = [
             ("heading_offset_prior_sd_rad", self.heading_offset_prior_sd_rad),
             ("steady_window_s", self.steady_window_s),
         ];
@@ -165,11 +230,13 @@ impl OnlineOptions {
             }
         }
         let rw = &self.random_walk;
-        if [rw.c_e_relative, rw.c_d_m, rw.t_r_m, rw.d].iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(Error::InvalidOption {
-                field: "random_walk",
-                reason: "must be finite and non-negative".into(),
-            });
+        for ((v, max), (name, unit, _)) in
+            [rw.c_e_relative, rw.c_d_m, rw.t_r_m, rw.d].into_iter().zip(MAX_RANDOM_WALK).zip(SD_UNITS)
+        {
+            if !(0.0..=max).contains(&v) {
+                let reason = format!("{name}'s sd after one hour {} is outside 0 … {} ({unit})", num(v), num(max));
+                return Err(Error::InvalidOption { field: "random_walk", reason });
+            }
         }
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
@@ -180,16 +247,22 @@ impl OnlineOptions {
                 reason: format!("must be at least 1 and at most {MAX_ITERATIONS_PER_SEGMENT}"),
             });
         }
-        if !(self.information_scale.is_finite() && self.information_scale > 0.0) {
-            return Err(Error::InvalidOption { field: "information_scale", reason: "must be positive".into() });
+        if !INFORMATION_SCALE_RANGE.contains(&self.information_scale) {
+            return Err(Error::InvalidOption {
+                field: "information_scale",
+                reason: format!(
+                    "must be within {} (0.15 counts each sample once; the default is 0.005)",
+                    shown(&INFORMATION_SCALE_RANGE)
+                ),
+            });
         }
         if self.sigma_factors.iter().any(|f| !(f.is_finite() && *f > 0.0)) {
             return Err(Error::InvalidOption { field: "sigma_factors", reason: "must be positive".into() });
         }
-        if self.recent_validation_segments == 0 {
+        if !(1..=MAX_RECENT_VALIDATION_SEGMENTS).contains(&self.recent_validation_segments) {
             return Err(Error::InvalidOption {
                 field: "recent_validation_segments",
-                reason: "must be at least 1".into(),
+                reason: format!("must be at least 1 and at most {MAX_RECENT_VALIDATION_SEGMENTS}"),
             });
         }
         Ok(())

@@ -387,6 +387,62 @@ fn iterations_per_segment_has_a_ceiling() {
     }
 }
 
+/// The options without a physical ceiling of their own have a plausible
+/// range: its ends are taken, a value beyond either (`1e308`, which left θ
+/// at θ_0 without a word) is refused naming the field and the range.
+#[test]
+fn the_weights_walks_priors_and_kept_segments_have_ranges() {
+    let check = |o: OnlineOptions| Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, o).map(|_| ());
+    let d = OnlineOptions::default;
+    let prior = |p: [f64; 4]| OnlineOptions {
+        prior_relative_c_e: p[0],
+        prior_c_d_m: p[1],
+        prior_relative_t_r: p[2],
+        prior_d: p[3],
+        ..d()
+    };
+    let walk = |w: [f64; 4]| OnlineOptions {
+        random_walk: RandomWalk { c_e_relative: w[0], c_d_m: w[1], t_r_m: w[2], d: w[3] },
+        ..d()
+    };
+    let lows = crate::PRIOR_SD_RANGE.clone().map(|r| *r.start());
+    let highs = crate::PRIOR_SD_RANGE.clone().map(|r| *r.end());
+    let taken = [
+        OnlineOptions { information_scale: *crate::INFORMATION_SCALE_RANGE.start(), ..d() },
+        OnlineOptions { information_scale: *crate::INFORMATION_SCALE_RANGE.end(), ..d() },
+        walk([0.0; 4]),
+        walk(crate::MAX_RANDOM_WALK),
+        prior(lows),
+        prior(highs),
+        OnlineOptions { recent_validation_segments: crate::MAX_RECENT_VALIDATION_SEGMENTS, ..d() },
+    ];
+    for o in taken {
+        check(o.clone()).unwrap_or_else(|e| panic!("{o:?}: {e}"));
+    }
+    let refused = [
+        (OnlineOptions { information_scale: 1e308, ..d() }, "information_scale", "within 1e-6 … 1"),
+        (OnlineOptions { information_scale: 1e-7, ..d() }, "information_scale", "within 1e-6 … 1"),
+        (walk([1e308, 1.0, 1.0, 1.0]), "random_walk", "c_e's sd after one hour 1e308 is outside 0 … 0.1"),
+        (walk([0.0, 0.0, 0.0, 0.06]), "random_walk", "d's sd after one hour 0.06 is outside 0 … 0.05"),
+        (prior([1e308, 5e-3, 0.05, 2e-3]), "prior_relative_c_e", "c_e's prior sd 1e308 is outside 1e-6 … 0.5"),
+        (prior([0.02, 5e-3, 0.6, 2e-3]), "prior_relative_t_r", "t_r's prior sd 0.6 is outside 1e-6 … 0.5"),
+        (prior([0.02, 1e-7, 0.05, 2e-3]), "prior_c_d_m", "c_d's prior sd 1e-7 is outside 1e-6 … 0.05"),
+        (
+            OnlineOptions { recent_validation_segments: 99_999_999_999, ..d() },
+            "recent_validation_segments",
+            "at most 10000",
+        ),
+    ];
+    for (o, field, says) in refused {
+        match check(o) {
+            Err(Error::InvalidOption { field: f, reason }) if f == field => {
+                assert!(reason.contains(says), "{field}: {reason}")
+            }
+            other => panic!("{field}: {other:?}"),
+        }
+    }
+}
+
 /// A perfectly straight drive (every segment's peak yaw rate 0): the
 /// default threshold 0 folds each of its segments, as the calibration's
 /// selection picks each (one rule: a peak at the threshold reaches it), and

@@ -86,23 +86,30 @@ fn refused_calibration_flags_are_usage_errors_naming_the_flag() {
 }
 
 /// `follow`'s online-calibrator flags out of range are usage errors naming
-/// the flag and the value given, before the history is opened (the
-/// library's check names its field, `information_scale`, which is no flag).
+/// the flag, the value given and the range, before the history is opened
+/// (the library's check names its field, `information_scale`, which is no
+/// flag), and before a drive is looked for.
 #[test]
 fn follow_flags_out_of_range_name_the_flag() {
     let dir = tempfile::tempdir().expect("tmp");
     let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
     let db = dir.path().join("h.sqlite");
-    let cases: [(&str, &str, &str); 11] = [
-        ("--information-scale", "0", "--information-scale = 0: must be positive"),
+    let cases: [(&str, &str, &str); 17] = [
+        ("--information-scale", "0", "--information-scale = 0: must be within 1e-6 … 1"),
+        ("--information-scale", "1e308", "--information-scale = 1e308: must be within 1e-6 … 1"),
         ("--sigma-factors", "1,0,1,1", "--sigma-factors = 1,0,1,1: must be positive"),
-        ("--random-walk", "nan,0,0,0", "--random-walk = NaN,0,0,0: must be finite and non-negative"),
-        ("--prior-sd", "0.02,0,0.05,2e-3", "--prior-sd = 0.02,0,0.05,0.002: must be positive"),
+        ("--random-walk", "nan,0,0,0", "--random-walk = NaN,0,0,0: c_e's sd after one hour NaN is outside 0 … 0.1"),
+        ("--random-walk", "1e308,1,1,1", "c_e's sd after one hour 1e308 is outside 0 … 0.1 (a fraction of c_e)"),
+        ("--random-walk", "0,0,2,0", "--random-walk = 0,0,2,0: t_r's sd after one hour 2 is outside 0 … 1 (m)"),
+        ("--prior-sd", "0.02,0,0.05,2e-3", "--prior-sd = 0.02,0,0.05,0.002: c_d's prior sd 0 is outside 1e-6 … 0.05"),
+        ("--prior-sd", "1e308,5e-3,0.05,2e-3", "c_e's prior sd 1e308 is outside 1e-6 … 0.5 (a fraction of c_e)"),
+        ("--prior-sd", "0.02,5e-3,0.05,1", "--prior-sd = 0.02,0.005,0.05,1: d's prior sd 1 is outside 1e-6 … 0.05"),
         ("--heading-offset-prior-sd", "0", "--heading-offset-prior-sd = 0: must be positive"),
         ("--informative-yaw-rate", "nan", "--informative-yaw-rate = NaN: must be a non-negative number"),
         ("--iterations-per-segment", "0", "--iterations-per-segment = 0: must be at least 1"),
         ("--steady-window-s", "0", "--steady-window-s = 0: must be positive"),
         ("--recent-validation-segments", "0", "--recent-validation-segments = 0: must be at least 1"),
+        ("--recent-validation-segments", "99999999999", "= 99999999999: must be at least 1 and at most 10000"),
         ("--steady-s", "-1", "--steady-s must be a non-negative number of seconds"),
         ("--max-sigma", "1,1,0,1", "--max-sigma must be four positive numbers"),
     ];
@@ -111,5 +118,6 @@ fn follow_flags_out_of_range_name_the_flag() {
         let e = assert_fails(&["follow", &d, "--vehicle", "v", "--db", s(&db), &given], 2, &[needle]);
         assert!(!e.contains("invalid option"), "{e}");
         assert!(!db.exists(), "{flag}: the history was opened before the flags were checked");
+        assert_fails(&["follow", "no-such.csv", "--vehicle", "v", "--db", s(&db), &given], 2, &[needle]);
     }
 }

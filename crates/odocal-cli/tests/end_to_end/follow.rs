@@ -574,6 +574,41 @@ fn history_files_are_checked_before_the_work_and_read_without_a_change() {
     assert_eq!(std::fs::read(&db).expect("db"), before, "history changed the file");
 }
 
+/// An SQLite file of another application given as `--db` is refused by
+/// `calibrate` and `follow` as `history` refuses it, naming the file, and
+/// left as it was; a FIFO is named as not a regular file.
+#[test]
+fn another_applications_sqlite_file_is_not_taken_over() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--length-km", "2"]);
+    let app = dir.path().join("app.db");
+    let conn = rusqlite::Connection::open(&app).expect("open");
+    conn.execute_batch("CREATE TABLE users (x);").expect("table");
+    drop(conn);
+    let before = std::fs::read(&app).expect("read");
+    let app_s = app.to_str().expect("utf8");
+    for args in [
+        vec!["calibrate", a.as_str(), "--method", "batch-gn", "--vehicle", "v1", "--db", app_s],
+        vec!["follow", a.as_str(), "--vehicle", "v1", "--db", app_s],
+        vec!["history", "v1", "--db", app_s],
+    ] {
+        let o = odocal(&args);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(e.contains(&format!("{app_s}: history database: ")), "{e}");
+        if args[0] != "history" {
+            assert!(e.contains("another application (its tables: 'users'), not an odocal history"), "{e}");
+        }
+    }
+    assert_eq!(std::fs::read(&app).expect("read"), before, "the file was changed");
+    assert!(!dir.path().join("app.db-wal").exists());
+    let fifo = dir.path().join("fifo");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+    let o = odocal(&["history", "v1", "--db", fifo.to_str().expect("utf8")]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("not a regular file") && !stderr(&o).contains("empty"), "{}", stderr(&o));
+}
+
 /// The highway van's manifest (`clock_offset = "auto"`) imported whole by
 /// `calibrate` and as a stream by `follow` gives two fingerprints (the
 /// stream decides the clock offset on its first 300 s): `follow` knows the

@@ -28,7 +28,8 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use super::csv::{
-    check_header, csv_error, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN, REQUIRED_COLUMNS, TRUTH_COLUMNS,
+    check_header, csv_error, echo, extra_name_problem, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN,
+    REQUIRED_COLUMNS, TRUTH_COLUMNS,
 };
 use super::csv_lines::LineCounted;
 use super::fingerprint::Fingerprinter;
@@ -360,12 +361,18 @@ impl Scanner {
         for (k, name) in REQUIRED_COLUMNS.iter().enumerate() {
             at[k] = find(name).ok_or_else(|| Stop::Refused(format!("no column {name}")))?;
         }
-        let numeric = (0..headers.len())
+        let numeric: Vec<usize> = (0..headers.len())
             .filter(|&j| {
                 let h = headers[j].as_str();
                 REQUIRED_COLUMNS.contains(&h) || TRUTH_COLUMNS.contains(&h) || h == MASK_COLUMN || h == PART_COLUMN
             })
             .collect();
+        // The other columns are extra columns, whose names the whole
+        // reader checks as every drive's (an empty one, a tab in one).
+        let extra = (0..headers.len()).filter(|j| !numeric.contains(j)).map(|j| headers[j].as_str());
+        if let Some((h, problem)) = extra.filter_map(|h| extra_name_problem(h).map(|p| (h, p))).next() {
+            return Err(Stop::Refused(format!("extra column '{}' {problem}", echo(h))));
+        }
         let out = (0..KEPT)
             .map(|_| tempfile::tempfile().map(|f| BufWriter::with_capacity(1 << 16, f)))
             .collect::<std::io::Result<Vec<_>>>()

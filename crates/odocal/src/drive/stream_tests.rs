@@ -160,6 +160,10 @@ fn errors_are_the_whole_readers() {
         ("mask", b"t,px,py,psi,n_rl,n_rr,beta,a_y,ref_measured\n0,0,0,0,1,1,0,0,1\n0.1,0,0,0,1,1,0,0,2\n".to_vec()),
         ("truth nan", b"t,px,py,psi,n_rl,n_rr,beta,a_y,px_true\n0,0,0,0,1,1,0,0,1\n0.1,0,0,0,1,1,0,0,nan\n".to_vec()),
         ("gzip", b"\x1f\x8b\x08\x00rest".to_vec()),
+        // Extra columns whose names no drive takes: empty (a header ending
+        // in a comma), with a tab.
+        ("empty extra name", g.replacen("a_y\n", "a_y,\n", 1).replace("0,0\n", "0,0,5\n").into_bytes()),
+        ("tab in an extra name", g.replacen("a_y\n", "a_y,a\tb\n", 1).replace("0,0\n", "0,0,5\n").into_bytes()),
         ("utf8", b"t,px,py,psi,n_rl,n_rr,beta,a_y,x\n0,0,0,0,1,1,0,0,\xff\n0.1,0,0,0,1,1,0,0,1\n".to_vec()),
     ];
     let dir = tempfile::tempdir().expect("tmp");
