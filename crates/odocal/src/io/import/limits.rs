@@ -190,6 +190,47 @@ pub(crate) fn check_overlap(m: &Manifest, wheels: &Span, pose: &Span) -> Result<
     })
 }
 
+/// The hint for an import whose streams overlap for `span_s`, less than
+/// `output.min_part_s` (no part can be kept): the streams whose times
+/// `time_unit` scales, with the span and mean rate that gives them (times
+/// in seconds read as ms span a thousandth of the drive at a thousand times
+/// its rate); otherwise where to look. Empty when the span is long enough.
+pub(crate) fn short_span_hint<'a>(
+    m: &Manifest,
+    span_s: f64,
+    streams: impl IntoIterator<Item = &'a super::report::StreamReport>,
+) -> String {
+    if !(span_s < m.output.min_part_s) {
+        return String::new();
+    }
+    let scaled: Vec<String> = streams
+        .into_iter()
+        .filter_map(|r| {
+            let unit = m.streams.get(&r.name)?.time_unit;
+            (unit != super::manifest::TimeUnit::S).then(|| {
+                format!(
+                    "streams.{} reads its times in {} (time_unit = \"{}\"): {} s at {} Hz",
+                    r.name,
+                    unit.name(),
+                    unit.name(),
+                    echo_num(r.time_span_s[1] - r.time_span_s[0]),
+                    echo_num(r.mean_rate_hz.round())
+                )
+            })
+        })
+        .collect();
+    let span = echo_num(span_s);
+    if scaled.is_empty() {
+        format!("; the streams overlap for only {span} s: check time_column, time_unit and time_offset_s")
+    } else {
+        format!(
+            "; the streams overlap for only {span} s and {}: are the times in seconds already? Then drop time_unit \
+             (seconds are the default)",
+            scaled.join(", ")
+        )
+    }
+}
+
 /// "streams.a's times are about 10⁶ × those of streams.b: µs?" when the
 /// middles of two spans differ by a factor near 10³, 10⁶ or 10⁹.
 fn unit_hint(a: &Span, b: &Span) -> String {

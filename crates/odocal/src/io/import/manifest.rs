@@ -186,6 +186,16 @@ pub(crate) enum TimeUnit {
 }
 
 impl TimeUnit {
+    /// The unit as a manifest writes it (`"ms"`).
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            TimeUnit::S => "s",
+            TimeUnit::Ms => "ms",
+            TimeUnit::Us => "us",
+            TimeUnit::Ns => "ns",
+        }
+    }
+
     /// Seconds per unit.
     pub(crate) fn seconds(self) -> f64 {
         match self {

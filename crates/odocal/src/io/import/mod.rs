@@ -384,7 +384,8 @@ pub(crate) fn import_drive(m: &Manifest) -> Result<ImportedDrive> {
 
     let s = OnGrid::resample(m, &streams, &wheels, &pose, &g.t, h);
     let measured = g.measured(&pose.t);
-    let grid::Parts { gaps, parts, kept } = g.parts(m)?;
+    let hint = limits::short_span_hint(m, end - start, streams.values().map(|s| &s.report));
+    let grid::Parts { gaps, parts, kept } = g.parts(m, &hint)?;
     let resampled = s.for_checks(h, start, &kept);
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, &mut warnings)?;

@@ -260,6 +260,12 @@ pub(crate) fn small_case(dir: &Path) -> PathBuf {
     }
     std::fs::write(dir.join("w.csv"), w).expect("write");
     std::fs::write(dir.join("p.csv"), p).expect("write");
+    small_case_manifest(dir)
+}
+
+/// The manifest of [`small_case`] over the stream files `w.csv` and
+/// `p.csv` in `dir` (`t,left,right` and `t,x,y,q`).
+fn small_case_manifest(dir: &Path) -> PathBuf {
     let m = r#"
 [output]
 min_part_s = 1.0
@@ -857,6 +863,34 @@ fn the_output_rate_limit_is_the_drives_sample_time_limit() {
     let m = Manifest::parse(&text, &path).expect("manifest");
     let d = import_drive(&m).expect("a 1 kHz import").drive;
     assert!((d.sample_time_s() - 1e-3).abs() < 1e-12, "{}", d.sample_time_s());
+}
+
+/// A stream in seconds read with `time_unit = "ms"` spans a thousandth
+/// of the drive: the error that no part is long enough names the unit, the
+/// span and the rate it gives.
+#[test]
+fn a_stream_in_seconds_read_as_ms_is_named_with_its_unit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut w = String::from("t,left,right\n");
+    let mut p = String::from("t,x,y,q\n");
+    for i in 0..20_000 {
+        writeln!(w, "{},5,5", i as f64 / 100.0).expect("write");
+    }
+    for i in 0..2_000 {
+        writeln!(p, "{},{i},0,1", i as f64 / 10.0).expect("write");
+    }
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    std::fs::write(dir.path().join("p.csv"), p).expect("write");
+    let path = small_case_manifest(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read").replace("min_part_s = 1.0", "min_part_s = 10.0").replacen(
+        "time_column = \"t\"",
+        "time_column = \"t\"\ntime_unit = \"ms\"",
+        1,
+    );
+    let e = Manifest::parse(&text, &path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("short").to_string();
+    assert!(e.contains("no continuous part of at least output.min_part_s = 10 s"), "{e}");
+    assert!(e.contains("streams.wheels reads its times in ms (time_unit = \"ms\"): 0.19999 s at 100000 Hz"), "{e}");
+    assert!(e.contains("are the times in seconds already?"), "{e}");
 }
 
 /// `output.max_gap_s` has an upper limit, named when exceeded.
