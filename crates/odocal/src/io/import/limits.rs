@@ -200,7 +200,7 @@ pub(crate) fn short_span_hint<'a>(
     span_s: f64,
     streams: impl IntoIterator<Item = &'a super::report::StreamReport>,
 ) -> String {
-    if !(span_s < m.output.min_part_s) {
+    if span_s >= m.output.min_part_s {
         return String::new();
     }
     let scaled: Vec<String> = streams
