@@ -411,10 +411,25 @@ pub(crate) fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
     })
 }
 
-/// Parses the TOML of [`read_noise_model`] and checks the model.
+/// Parses the TOML of [`read_noise_model`] and checks the model. A TOML
+/// error says where: `line L, column C: message` (a duplicate key named).
 pub(crate) fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
-    let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
+    let table: toml::Table = toml::from_str(text).map_err(|e| toml_error(&e, text))?;
     noise_model_from_table(table)
+}
+
+/// `line L, column C: message` of a TOML error in `text`, the message on
+/// one line, a duplicate key named.
+fn toml_error(e: &toml::de::Error, text: &str) -> String {
+    let mut msg = crate::drive::clip(e.message().trim(), 400).replace('\n', " ");
+    let Some(span) = e.span() else { return msg };
+    if msg == "duplicate key" {
+        if let Some(key) = crate::io::toml_text::duplicate_key(text, span.clone()) {
+            msg = format!("duplicate key '{}': given more than once; keep one", crate::drive::clip(&key, 200));
+        }
+    }
+    let (line, column) = crate::io::toml_text::line_column(text, span.start);
+    format!("line {line}, column {column}: {msg}")
 }
 
 /// A noise model from a TOML table of [`NoiseModel`] fields and `known` (a

@@ -275,6 +275,16 @@ fn noise_model_files_name_unknown_fields() {
     assert!(e.starts_with("sideslip_sigma_rad: "), "{e}");
 }
 
+/// A noise model file that is not valid TOML says where: line and column,
+/// and a key given twice by name.
+#[test]
+fn noise_model_syntax_errors_give_line_and_column() {
+    let e = parse_noise_model("wheel_white_rel_sigma = 0.01\n[x\n").expect_err("unclosed table");
+    assert_eq!(e, "line 2, column 3: unclosed table, expected `]`");
+    let e = parse_noise_model("wheel_white_rel_sigma = 0.01\nwheel_white_rel_sigma = 0.02\n").expect_err("duplicate");
+    assert_eq!(e, "line 2, column 1: duplicate key 'wheel_white_rel_sigma': given more than once; keep one");
+}
+
 /// A noise model's `known = [...]`: the sources held at the stated level.
 #[test]
 fn noise_model_files_state_known_sources() {

@@ -13,6 +13,7 @@ pub(crate) mod exact;
 pub(crate) mod import;
 pub(crate) mod param_file;
 mod replay;
+pub(crate) mod toml_text;
 
 pub use import::stream::RawStream;
 pub use replay::Replay;

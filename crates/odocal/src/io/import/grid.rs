@@ -127,8 +127,9 @@ impl Grid {
     }
 
     /// The continuous parts (runs of valid samples) and gaps (runs of
-    /// invalid ones); parts shorter than `min_part_s` are dropped.
-    pub(super) fn parts(&self, m: &Manifest) -> Result<Parts> {
+    /// invalid ones); parts shorter than `min_part_s` are dropped. `hint`
+    /// ends the error when no part is kept.
+    pub(super) fn parts(&self, m: &Manifest, hint: &str) -> Result<Parts> {
         let (n, h, o) = (self.len(), self.h, &m.output);
         let mut runs: Vec<(Range<usize>, bool)> = Vec::new();
         let mut k = 0;
@@ -166,7 +167,7 @@ impl Grid {
                 context: m.path.display().to_string(),
                 reason: format!(
                     "no continuous part of at least output.min_part_s = {} s ({} parts, {} gaps); lower \
-                     min_part_s or check the gaps",
+                     min_part_s or check the gaps{hint}",
                     crate::drive::echo_num(o.min_part_s),
                     parts.len(),
                     gaps.len()

@@ -4,7 +4,9 @@
 //! | what | limit | why |
 //! |---|---|---|
 //! | output samples (common span × `rate_hz`, and the wheel span × `rate_hz` of the clock estimate) | [`MAX_OUTPUT_SAMPLES`] = 10⁷ | about 20 f64 columns per sample: ≤ 2 GB; 69 h at 40 Hz |
-//! | `output.rate_hz` | [`MIN_OUTPUT_RATE_HZ`] … [`MAX_OUTPUT_RATE_HZ`] = 1 … 10,000 Hz | the model runs at tens of Hz |
+//! | output samples against the wheel stream's rows | at most [`FREE_OUTPUT_SAMPLES`] = 10⁶ or [`MAX_OUTPUT_PER_WHEEL_ROW`] = 10 × the rows, whichever is more | more is interpolation across gaps, not data; the memory follows the streams |
+//! | `output.rate_hz` | [`MIN_OUTPUT_RATE_HZ`] … [`MAX_OUTPUT_RATE_HZ`] = 1 … 1,000 Hz | the model runs at tens of Hz; a drive's sample time is 1 ms … 1 s |
+//! | `output.max_gap_s` | [`MAX_GAP_S`] = 10 s | a gap is bridged by interpolation; across more there is no data |
 //! | `output.max_clock_offset_s` | [`MAX_CLOCK_OFFSET_S`] = 60 s | larger means a wrong time column, unit or offset |
 //! | clock search work (grid samples × lags) | [`MAX_CORRELATION_WORK`] = 4·10⁹ | seconds, not hours |
 //! | `streams.*.nominal_rate_hz` | [`MAX_NOMINAL_RATE_HZ`] = 100 kHz, and at most [`MAX_NOMINAL_OVER_MEAN_RATE`] × the stream's mean rate | de-jittering assigns one index per nominal period |
@@ -26,8 +28,19 @@ use crate::error::{Error, Result};
 pub(crate) const MAX_OUTPUT_SAMPLES: usize = 10_000_000;
 /// Lowest output rate, Hz.
 pub(crate) const MIN_OUTPUT_RATE_HZ: f64 = 1.0;
-/// Highest output rate, Hz.
-pub(crate) const MAX_OUTPUT_RATE_HZ: f64 = 10_000.0;
+/// Highest output rate, Hz: the inverse of the shortest sample time a
+/// drive may have ([`crate::model::limits::PhysicalLimits`]'s default
+/// `min_sample_time_s`, which the imported drive is checked against).
+pub(crate) const MAX_OUTPUT_RATE_HZ: f64 = 1_000.0;
+/// Longest stream gap `output.max_gap_s` may bridge by interpolation, s.
+pub(crate) const MAX_GAP_S: f64 = 10.0;
+/// Output samples an import may have whatever the wheel stream holds
+/// (about 200 MB of import memory at most).
+pub(crate) const FREE_OUTPUT_SAMPLES: usize = 1_000_000;
+/// Most output samples per wheel-stream row beyond [`FREE_OUTPUT_SAMPLES`]:
+/// a wheel stream at a tenth of the output rate or slower, averaged over
+/// the drive, is mostly gaps.
+pub(crate) const MAX_OUTPUT_PER_WHEEL_ROW: usize = 10;
 /// Largest clock-offset search range, ± s.
 pub(crate) const MAX_CLOCK_OFFSET_S: f64 = 60.0;
 /// Most multiply-adds of the clock-offset search (grid samples × lags × 2).
@@ -87,6 +100,37 @@ pub(crate) fn check_samples(m: &Manifest, what: &str, span_s: f64) -> Result<()>
     ))
 }
 
+/// Output samples of `span_s` at `rate_hz` must stay within what the
+/// wheel stream `wheels` holds (`wheel_rows` rows; `pose` with `pose_rows`
+/// is named beside it): at most [`FREE_OUTPUT_SAMPLES`] or
+/// [`MAX_OUTPUT_PER_WHEEL_ROW`] × `wheel_rows`, whichever is more. Checked
+/// before the grid is allocated.
+pub(crate) fn check_samples_per_row(
+    m: &Manifest,
+    span_s: f64,
+    (wheels, wheel_rows): (&str, usize),
+    (pose, pose_rows): (&str, usize),
+) -> Result<()> {
+    let n = span_s * m.output.rate_hz;
+    let allowed = FREE_OUTPUT_SAMPLES.max(MAX_OUTPUT_PER_WHEEL_ROW.saturating_mul(wheel_rows));
+    if n.is_finite() && n <= allowed as f64 {
+        return Ok(());
+    }
+    Err(Error::Manifest {
+        path: m.path.clone(),
+        reason: format!(
+            "{wheels} spans {} s: at output.rate_hz = {} Hz that is {} output samples, but {wheels} holds \
+             {wheel_rows} rows ({pose}: {pose_rows}); an import makes at most {FREE_OUTPUT_SAMPLES} output \
+             samples or {MAX_OUTPUT_PER_WHEEL_ROW} per wheel row, whichever is more: the rest would be \
+             interpolated across gaps, not data. Check the streams' time_column and time_unit, or split the log \
+             where it pauses",
+            echo_num(span_s),
+            echo_num(m.output.rate_hz),
+            echo_num(n.round())
+        ),
+    })
+}
+
 /// The clock-offset search over `grid_samples` samples must stay within
 /// [`MAX_CORRELATION_WORK`].
 pub(crate) fn check_correlation(m: &Manifest, grid_samples: usize) -> Result<()> {
@@ -144,6 +188,47 @@ pub(crate) fn check_overlap(m: &Manifest, wheels: &Span, pose: &Span) -> Result<
             unit_hint(wheels, pose)
         ),
     })
+}
+
+/// The hint for an import whose streams overlap for `span_s`, less than
+/// `output.min_part_s` (no part can be kept): the streams whose times
+/// `time_unit` scales, with the span and mean rate that gives them (times
+/// in seconds read as ms span a thousandth of the drive at a thousand times
+/// its rate); otherwise where to look. Empty when the span is long enough.
+pub(crate) fn short_span_hint<'a>(
+    m: &Manifest,
+    span_s: f64,
+    streams: impl IntoIterator<Item = &'a super::report::StreamReport>,
+) -> String {
+    if span_s >= m.output.min_part_s {
+        return String::new();
+    }
+    let scaled: Vec<String> = streams
+        .into_iter()
+        .filter_map(|r| {
+            let unit = m.streams.get(&r.name)?.time_unit;
+            (unit != super::manifest::TimeUnit::S).then(|| {
+                format!(
+                    "streams.{} reads its times in {} (time_unit = \"{}\"): {} s at {} Hz",
+                    r.name,
+                    unit.name(),
+                    unit.name(),
+                    echo_num(r.time_span_s[1] - r.time_span_s[0]),
+                    echo_num(r.mean_rate_hz.round())
+                )
+            })
+        })
+        .collect();
+    let span = echo_num(span_s);
+    if scaled.is_empty() {
+        format!("; the streams overlap for only {span} s: check time_column, time_unit and time_offset_s")
+    } else {
+        format!(
+            "; the streams overlap for only {span} s and {}: are the times in seconds already? Then drop time_unit \
+             (seconds are the default)",
+            scaled.join(", ")
+        )
+    }
 }
 
 /// "streams.a's times are about 10⁶ × those of streams.b: µs?" when the

@@ -186,6 +186,16 @@ pub(crate) enum TimeUnit {
 }
 
 impl TimeUnit {
+    /// The unit as a manifest writes it (`"ms"`).
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            TimeUnit::S => "s",
+            TimeUnit::Ms => "ms",
+            TimeUnit::Us => "us",
+            TimeUnit::Ns => "ns",
+        }
+    }
+
     /// Seconds per unit.
     pub(crate) fn seconds(self) -> f64 {
         match self {
@@ -562,12 +572,14 @@ impl QualitySpec {
             && !v.is_nan()
     }
 
-    /// The manifest key naming the test(s), for messages.
+    /// The manifest key naming the test(s), for messages: the one test
+    /// given, or the table when several are.
     pub(crate) fn key(&self) -> &'static str {
-        match (self.accept.is_empty(), self.max.is_some() || self.min.is_some()) {
-            (false, false) => "pose.quality.accept",
-            (true, _) => "pose.quality.max",
-            (false, true) => "pose.quality",
+        match (!self.accept.is_empty(), self.max.is_some(), self.min.is_some()) {
+            (true, false, false) => "pose.quality.accept",
+            (false, true, false) => "pose.quality.max",
+            (false, false, true) => "pose.quality.min",
+            _ => "pose.quality",
         }
     }
 }
@@ -864,7 +876,14 @@ fn toml_message(e: &toml::de::Error, text: &str, key: Option<String>) -> String 
             msg = "missing (required)".to_string();
         }
     }
-    let line = e.span().map(|s| text.get(..s.start).unwrap_or(text).matches('\n').count() + 1);
+    // "duplicate key" names none: name it from the span.
+    if msg == "duplicate key" {
+        if let Some(k) = e.span().and_then(|s| crate::io::toml_text::duplicate_key(text, s)) {
+            key = Some(k);
+            msg = "duplicate key: given more than once; keep one".to_string();
+        }
+    }
+    let line = e.span().map(|s| crate::io::toml_text::line_column(text, s.start).0);
     let at = line.map(|l| format!(" (line {l})")).unwrap_or_default();
     // The parser quotes the offending text: a key of a megabyte would be a
     // line of a megabyte.
@@ -930,5 +949,30 @@ position = {{ kind = "local", x = "x", y = "y" }}
         assert!(!q.accepts(100.0) && !q.accepts(-1.0) && !q.accepts(f64::NAN));
         let both = quality("quality = { column = \"q\", accept = [2.0], max = 1.5 }");
         assert!(!both.accepts(2.0), "every given test must pass");
+    }
+
+    /// A message about the quality tests names the one test given, or the
+    /// table when several are.
+    #[test]
+    fn the_quality_key_names_the_tests_given() {
+        let key = |q: &str| quality(&format!("quality = {{ column = \"q\", {q} }}")).key();
+        assert_eq!(key("min = 100.0"), "pose.quality.min");
+        assert_eq!(key("max = 1.0"), "pose.quality.max");
+        assert_eq!(key("accept = [4.0]"), "pose.quality.accept");
+        assert_eq!(key("min = 0.0, max = 1.0"), "pose.quality");
+        assert_eq!(key("accept = [4.0], min = 1.0"), "pose.quality");
+    }
+
+    /// A key given twice is named with its table, on its line.
+    #[test]
+    fn a_duplicate_key_is_named() {
+        let e = Manifest::parse("[output]\nrate_hz = 40.0\nrate_hz = 41.0\n", Path::new("m.toml"))
+            .expect_err("duplicate")
+            .to_string();
+        assert_eq!(e, "m.toml: output.rate_hz: duplicate key: given more than once; keep one (line 3)");
+        let e = Manifest::parse("[output]\nrate_hz = 40.0\n[output]\nmax_gap_s = 1\n", Path::new("m.toml"))
+            .expect_err("duplicate")
+            .to_string();
+        assert!(e.starts_with("m.toml: output: duplicate key") && e.ends_with("(line 3)"), "{e}");
     }
 }

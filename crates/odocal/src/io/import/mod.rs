@@ -384,7 +384,8 @@ pub(crate) fn import_drive(m: &Manifest) -> Result<ImportedDrive> {
 
     let s = OnGrid::resample(m, &streams, &wheels, &pose, &g.t, h);
     let measured = g.measured(&pose.t);
-    let grid::Parts { gaps, parts, kept } = g.parts(m)?;
+    let hint = limits::short_span_hint(m, end - start, streams.values().map(|s| &s.report));
+    let grid::Parts { gaps, parts, kept } = g.parts(m, &hint)?;
     let resampled = s.for_checks(h, start, &kept);
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, &mut warnings)?;
@@ -438,10 +439,11 @@ pub(crate) fn import_drive(m: &Manifest) -> Result<ImportedDrive> {
 }
 
 /// The budgets, checked before anything is allocated from the spans: the
-/// wheel and pose streams overlap, and the clock-offset search grid over
-/// the wheel span and, for `"auto"`, its correlation stay within their
-/// limits (a fixed offset's estimate, only reported, is skipped instead:
-/// [`clock::align`]).
+/// wheel and pose streams overlap, the clock-offset search grid over the
+/// wheel span (which holds the output grid) stays within the sample budget
+/// and within what the wheel stream holds, and, for `"auto"`, its
+/// correlation stays within its limit (a fixed offset's estimate, only
+/// reported, is skipped instead: [`clock::align`]).
 fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Result<()> {
     let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), wheel_t);
     limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), pose_t))?;
@@ -450,6 +452,12 @@ fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Resul
         m,
         &format!("{} (the clock-offset search grid)", wheel_span.name),
         wheel_span.end - wheel_span.start,
+    )?;
+    limits::check_samples_per_row(
+        m,
+        wheel_span.end - wheel_span.start,
+        (&wheel_span.name, wheel_t.len()),
+        (&format!("streams.{} (pose)", m.pose.stream), pose_t.len()),
     )?;
     match m.output.clock_offset {
         ClockOffset::Auto => limits::check_correlation(m, clock_samples as usize),

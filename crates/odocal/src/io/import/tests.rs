@@ -260,6 +260,12 @@ pub(crate) fn small_case(dir: &Path) -> PathBuf {
     }
     std::fs::write(dir.join("w.csv"), w).expect("write");
     std::fs::write(dir.join("p.csv"), p).expect("write");
+    small_case_manifest(dir)
+}
+
+/// The manifest of [`small_case`] over the stream files `w.csv` and
+/// `p.csv` in `dir` (`t,left,right` and `t,x,y,q`).
+fn small_case_manifest(dir: &Path) -> PathBuf {
     let m = r#"
 [output]
 min_part_s = 1.0
@@ -829,13 +835,123 @@ fn absurd_output_rates_are_rejected_naming_the_key() {
         assert!(e.len() < 400, "{e}");
     }
     // Within the rate limit but beyond the sample budget for the span: a
-    // 10 kHz output of a 2000 s log.
+    // 1 kHz output of a 20,000 s log.
     let (e, largest) = small_case_error(
-        |t| t.replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 10000"),
-        |w| w.replace("\n3.99,", "\n2000,"),
+        |t| t.replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 1000"),
+        |w| w.replace("\n3.99,", "\n20000,"),
     );
     assert!(e.contains("output.rate_hz") && e.contains("budget"), "{e}");
     assert_eq!(largest, 0, "nothing allocated before the budget check");
+}
+
+/// The output rate's limit is the drive's sample-time limit: every rate the
+/// manifest accepts gives a drive whose sample time passes the drive
+/// checks, and a faster one is refused naming the key, before any stream
+/// is read.
+#[test]
+fn the_output_rate_limit_is_the_drives_sample_time_limit() {
+    let drive_limits = crate::model::limits::PhysicalLimits::default();
+    assert!((limits::MAX_OUTPUT_RATE_HZ * drive_limits.min_sample_time_s - 1.0).abs() < 1e-12);
+    assert!((limits::MIN_OUTPUT_RATE_HZ * drive_limits.max_sample_time_s - 1.0).abs() < 1e-12);
+    let (e, largest) = small_case_error(|t| t.replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 2000.0"), |w| w);
+    assert!(e.contains("output.rate_hz: 2000 is above the limit of 1000"), "{e}");
+    assert_eq!(largest, 0, "refused before any grid");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text =
+        std::fs::read_to_string(&path).expect("read").replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 1000.0");
+    let m = Manifest::parse(&text, &path).expect("manifest");
+    let d = import_drive(&m).expect("a 1 kHz import").drive;
+    assert!((d.sample_time_s() - 1e-3).abs() < 1e-12, "{}", d.sample_time_s());
+}
+
+/// A stream in seconds read with `time_unit = "ms"` spans a thousandth
+/// of the drive: the error that no part is long enough names the unit, the
+/// span and the rate it gives.
+#[test]
+fn a_stream_in_seconds_read_as_ms_is_named_with_its_unit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut w = String::from("t,left,right\n");
+    let mut p = String::from("t,x,y,q\n");
+    for i in 0..20_000 {
+        writeln!(w, "{},5,5", i as f64 / 100.0).expect("write");
+    }
+    for i in 0..2_000 {
+        writeln!(p, "{},{i},0,1", i as f64 / 10.0).expect("write");
+    }
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    std::fs::write(dir.path().join("p.csv"), p).expect("write");
+    let path = small_case_manifest(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read").replace("min_part_s = 1.0", "min_part_s = 10.0").replacen(
+        "time_column = \"t\"",
+        "time_column = \"t\"\ntime_unit = \"ms\"",
+        1,
+    );
+    let e = Manifest::parse(&text, &path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("short").to_string();
+    assert!(e.contains("no continuous part of at least output.min_part_s = 10 s"), "{e}");
+    assert!(e.contains("streams.wheels reads its times in ms (time_unit = \"ms\"): 0.19999 s at 100000 Hz"), "{e}");
+    assert!(e.contains("are the times in seconds already?"), "{e}");
+}
+
+/// `output.max_gap_s` has an upper limit, named when exceeded.
+#[test]
+fn max_gap_beyond_its_limit_is_refused_naming_the_key() {
+    for gap in ["1e9", "10.5"] {
+        let e = manifest_error(|t| t.replace("min_part_s = 1.0", &format!("min_part_s = 1.0\nmax_gap_s = {gap}")));
+        assert!(e.contains("output.max_gap_s") && e.contains("above the limit of 10"), "{gap}: {e}");
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text =
+        std::fs::read_to_string(&path).expect("read").replace("min_part_s = 1.0", "min_part_s = 1.0\nmax_gap_s = 10");
+    Manifest::parse(&text, &path).expect("10 s is within the limit");
+}
+
+/// Two rows each a long time apart: the output would be millions of
+/// samples interpolated between them, within the sample budget but far
+/// beyond what the streams hold. Refused naming the streams and their rows
+/// before any grid is allocated.
+#[test]
+fn an_output_far_beyond_the_wheel_streams_rows_is_refused_before_allocating() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("w.csv"), "t,rl,rr\n0,1,1\n9990000,1,1\n").expect("write");
+    std::fs::write(dir.path().join("p.csv"), "t,x,y\n0,0,0\n9990000,1,0\n").expect("write");
+    let text = r#"
+[output]
+rate_hz = 1.0
+max_gap_s = 10
+min_part_s = 0.0
+clock_offset = 0.0
+[streams.w]
+file = "w.csv"
+time_column = "t"
+[streams.p]
+file = "p.csv"
+time_column = "t"
+[wheels]
+stream = "w"
+signal = "rev_per_s"
+rear_left = { column = "rl" }
+rear_right = { column = "rr" }
+[pose]
+stream = "p"
+position = { kind = "local", x = "x", y = "y" }
+"#;
+    let path = dir.path().join("m.toml");
+    limits::LARGEST_GRID.with(|c| c.set(0));
+    let e = Manifest::parse(text, &path).and_then(|m| import_drive(&m)).map(|_| ()).expect_err("refused").to_string();
+    assert!(e.contains("streams.w spans 9990000 s") && e.contains("9990000 output samples"), "{e}");
+    assert!(e.contains("streams.w holds 2 rows") && e.contains("streams.p (pose): 2"), "{e}");
+    assert_eq!(limits::LARGEST_GRID.with(|c| c.get()), 0, "nothing allocated before the check");
+    // The same streams a million seconds shorter fit the samples any import
+    // may have.
+    let short = |f: &str| f.replace("9990000", "900000");
+    for f in ["w.csv", "p.csv"] {
+        let p = dir.path().join(f);
+        std::fs::write(&p, short(&std::fs::read_to_string(&p).expect("read"))).expect("write");
+    }
+    let e = Manifest::parse(text, &path).and_then(|m| import_drive(&m)).map(|_| ()).err().map(|e| e.to_string());
+    assert!(e.as_ref().is_none_or(|e| !e.contains("rows")), "{e:?}");
 }
 
 #[test]

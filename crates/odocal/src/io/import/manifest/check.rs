@@ -21,8 +21,8 @@ impl Manifest {
     }
 
     /// `[output]` and `[limits]`: the output rate in Hz within its limits,
-    /// gaps and clock offsets positive and bounded, a finite given clock
-    /// offset, a valid θ_0.
+    /// the longest bridged gap and clock offsets positive and bounded, a
+    /// finite given clock offset, a valid θ_0.
     fn check_output(&self) -> Result<()> {
         let o = &self.output;
         self.require_positive("output.rate_hz", o.rate_hz)?;
@@ -30,7 +30,7 @@ impl Manifest {
             "output.rate_hz",
             o.rate_hz,
             limits::MAX_OUTPUT_RATE_HZ,
-            "the model runs at tens of Hz (40 in the paper)",
+            "the model runs at tens of Hz (40 in the paper) and a drive's sample time is at least 1 ms",
         )?;
         if o.rate_hz < limits::MIN_OUTPUT_RATE_HZ {
             return Err(self.error(
@@ -43,6 +43,12 @@ impl Manifest {
             ));
         }
         self.require_positive("output.max_gap_s", o.max_gap_s)?;
+        self.require_at_most(
+            "output.max_gap_s",
+            o.max_gap_s,
+            limits::MAX_GAP_S,
+            "a longer gap is bridged by interpolation, not data: let it split the drive into parts",
+        )?;
         self.require_positive("output.max_clock_offset_s", o.max_clock_offset_s)?;
         self.require_at_most(
             "output.max_clock_offset_s",

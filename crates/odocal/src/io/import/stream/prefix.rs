@@ -38,7 +38,7 @@ pub(crate) fn check_conventions(m: &Manifest, p: &Prefix<'_>, h: f64, warnings: 
     let wheel_bad = grid::gaps_of(&ws.t, o.max_gap_s, "wheel");
     let g = marked_grid(m, (start, end, h), p.streams, &wheel_bad, p.pose, p.roll);
     let s = OnGrid::resample(m, p.streams, p.wheels, p.pose, &g.t, h);
-    let Ok(grid::Parts { kept, .. }) = g.parts(m) else { return Ok(()) };
+    let Ok(grid::Parts { kept, .. }) = g.parts(m, "") else { return Ok(()) };
     let resampled = s.for_checks(h, start, &kept);
     // The wheel speeds first, as the whole import judges them.
     checks::wheel_speeds(m, &resampled, &theta0)?;
