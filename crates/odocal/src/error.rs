@@ -197,10 +197,10 @@ pub enum Error {
     },
     /// A drive shares samples with another given with it: a part of it,
     /// or a copy thinned to every n-th sample ([`crate::refuse_duplicates`]).
-    #[error("{part} shares {} % of its samples with {whole} ({shared} of its {samples} moving samples have the \
-             reference position and both wheel readings of a sample of {whole}, bit for bit: a part or a thinned \
-             copy of it): held-out data must be a different drive, and drives calibrated together must not \
-             overlap; give each stretch of driving once", percent(*shared, *samples))]
+    #[error("{part} shares {} % of its samples with {whole} ({shared} of its {samples} moving samples, the \
+             reference position and both wheel readings bit for bit: a part or a thinned copy of it): held-out \
+             data must be a different drive, and drives calibrated together must not overlap; give each stretch \
+             of driving once", percent(*shared, *samples))]
     SharedSamples {
         /// The drive whose samples the other holds, by role and name.
         part: String,
