@@ -61,6 +61,26 @@ def test_validate_on_several_drives(csvs):
     assert r.validation["held_out"]
 
 
+def rows_of(drive, rows, step=1, t0=0.0):
+    """A drive of `drive`'s samples `rows` (a slice), sampled `step` times as far apart, time from `t0`."""
+    cols = [drive.column(n)[rows] for n in ("px", "py", "psi", "n_rl", "n_rr", "a_y")]
+    t = t0 + np.arange(len(cols[0])) * drive.sample_time_s * step
+    return odocal.Drive.from_arrays(t, *cols)
+
+
+def test_a_part_or_a_thinned_copy_is_refused_and_validate_on_shares_the_rate(csvs):
+    a, b = odocal.Drive.from_csv(csvs[0]), odocal.Drive.from_csv(csvs[1])
+    part, thinned = rows_of(a, slice(0, 4000), t0=1000.0), rows_of(a, slice(1, None, 2), step=2)
+    for copy in (part, thinned):
+        with pytest.raises(odocal.OdocalError, match=r"^validate_on shares 100 % of its samples with drive \("):
+            odocal.calibrate(a, "batch-gn", validate_on=copy)
+        with pytest.raises(odocal.OdocalError, match=r"^drive\[1\] shares 100 % of its samples with drive\[0\]"):
+            odocal.calibrate([a, copy], "batch-gn")
+    # Another drive at 20 Hz: its validation segments would span twice the time.
+    with pytest.raises(odocal.OdocalError, match=r"validation drive validate_on\[0\]: its sample time is 0\.050000 s"):
+        odocal.calibrate(a, "batch-gn", validate_on=[rows_of(b, slice(0, None, 2), step=2)])
+
+
 def test_several_drives_bad_input_raises(csvs):
     a = odocal.Drive.from_csv(csvs[0])
     with pytest.raises(odocal.OdocalError, match="no drives given"):

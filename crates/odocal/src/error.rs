@@ -195,6 +195,22 @@ pub enum Error {
         /// The fingerprints of `first` and `second`.
         fingerprints: (String, String),
     },
+    /// A drive shares samples with another given with it: a part of it,
+    /// or a copy thinned to every n-th sample ([`crate::refuse_duplicates`]).
+    #[error("{part} shares {} % of its samples with {whole} ({shared} of its {samples} moving samples, the \
+             reference position and both wheel readings bit for bit: a part or a thinned copy of it): held-out \
+             data must be a different drive, and drives calibrated together must not overlap; give each stretch \
+             of driving once", percent(*shared, *samples))]
+    SharedSamples {
+        /// The drive whose samples the other holds, by role and name.
+        part: String,
+        /// The drive that holds them.
+        whole: String,
+        /// How many of `part`'s samples `whole` holds.
+        shared: usize,
+        /// How many samples of `part` were compared (moving, once in it).
+        samples: usize,
+    },
     /// A ROS 2 bag has no topic of the requested name.
     #[error("{path}: no topic '{topic}' in the bag; its topics: {}", fmt_topics(available))]
     BagTopicNotFound {
@@ -279,6 +295,16 @@ pub enum Error {
 /// `1720717537.428161000`.
 pub(crate) fn fmt_ns(ns: u64) -> String {
     format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// `shared` of `samples` in whole percent, 100 only when all are shared.
+fn percent(shared: usize, samples: usize) -> String {
+    let p = 100.0 * shared as f64 / samples.max(1) as f64;
+    if shared >= samples {
+        "100".into()
+    } else {
+        format!("{:.0}", p.min(99.0))
+    }
 }
 
 /// `/a (type), /b (type)` for the topic-not-found message.

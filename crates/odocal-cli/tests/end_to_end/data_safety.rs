@@ -1,7 +1,8 @@
 //! The user's data are never lost: an output onto an input (or onto
 //! another output) is refused before any work, every output is written
-//! atomically, a cut-off CSV is not read as a drive, the same drive is not
-//! counted twice and a simulator sidecar is the truth of its own drive only.
+//! atomically, a cut-off CSV is not read as a drive, the same drive (or a
+//! part of it) is not counted twice and a simulator sidecar is the truth of
+//! its own drive only.
 
 use std::path::{Path, PathBuf};
 
@@ -305,6 +306,47 @@ fn the_same_samples_imported_another_way_are_refused() {
     let e = simulated_drive(dir.path(), "e.csv", &["--seed", "5", "--length-km", "2", "--noise", "off"]);
     let o = odocal(&["calibrate", &d, "--method", "batch-gn", "--validate-on", &e]);
     assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// A part of the calibration drive, or a copy of it at half the rate, is
+/// not held-out data nor a second drive, whatever its time stamps; a
+/// separate drive at another rate is not validation data either: its
+/// validation segments would span another length of drive.
+#[test]
+fn a_part_or_a_thinned_copy_of_the_drive_is_refused_and_so_is_another_rate() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "2"]);
+    let text = std::fs::read_to_string(&d).expect("drive");
+    let lines: Vec<&str> = text.lines().collect();
+    let write = |name: &str, keep: &dyn Fn(usize) -> bool| {
+        let p = dir.path().join(name);
+        let rows: Vec<&str> = lines.iter().enumerate().filter(|(i, _)| *i == 0 || keep(*i)).map(|(_, l)| *l).collect();
+        std::fs::write(&p, rows.join("\n") + "\n").expect("write");
+        p
+    };
+    // The first 4000 samples; every other sample (20 Hz).
+    let part = write("part.csv", &|i| i <= 4000);
+    let half = write("half.csv", &|i| i % 2 == 1);
+    let refusal = [" shares 100 % of its samples with ", "held-out data must be a different drive"];
+    for copy in [&part, &half] {
+        let name = format!("the --validate-on drive {}", s(copy));
+        refused(&["calibrate", &d, "--method", "batch-gn", "--validate-on", s(copy)], &[&name, &refusal[0][1..]]);
+        refused(&["calibrate", &d, s(copy), "--method", "batch-gn"], &refusal);
+    }
+    refused(
+        &["calibrate", s(&part), "--method", "batch-gn", "--validate-on", &d],
+        &[&format!("{} shares 100 %", s(&part))],
+    );
+    // Another drive at half the rate.
+    let e = simulated_drive(dir.path(), "e.csv", &["--seed", "5", "--length-km", "2"]);
+    let e20 = dir.path().join("e20.csv");
+    let e_text = std::fs::read_to_string(&e).expect("drive");
+    let rows: Vec<&str> = e_text.lines().enumerate().filter(|(i, _)| i % 2 == 0).map(|(_, l)| l).collect();
+    std::fs::write(&e20, rows.join("\n") + "\n").expect("write");
+    refused(
+        &["calibrate", &d, "--method", "batch-gn", "--validate-on", s(&e20)],
+        &[&format!("validation drive {}: its sample time is 0.050000 s, the calibration drive's 0.025000 s", s(&e20))],
+    );
 }
 
 #[test]

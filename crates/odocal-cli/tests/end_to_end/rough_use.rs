@@ -97,13 +97,22 @@ fn a_drive_that_never_moves_gets_no_command_that_fails_alike() {
 fn a_bad_validation_drive_is_named() {
     let dir = tempfile::tempdir().expect("tmp");
     let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "2"]);
-    // The same drive with its time doubled: the wheels turn twice too fast for the reference.
-    let text = std::fs::read_to_string(&d).expect("read");
+    // Another drive with its wheel readings doubled: the wheels turn twice too fast for the reference.
+    let e = crate::common::simulated_drive(dir.path(), "e.csv", &["--length-km", "2", "--seed", "5"]);
+    let text = std::fs::read_to_string(&e).expect("read");
     let mut lines = text.lines();
-    let mut slow = format!("{}\n", lines.next().expect("header"));
+    let header = lines.next().expect("header");
+    let wheels: Vec<usize> =
+        header.split(',').enumerate().filter(|(_, h)| *h == "n_rl" || *h == "n_rr").map(|(i, _)| i).collect();
+    assert_eq!(wheels.len(), 2, "{header}");
+    let mut slow = format!("{header}\n");
     for l in lines {
-        let (t, rest) = l.split_once(',').expect("row");
-        slow.push_str(&format!("{},{rest}\n", 2.0 * t.parse::<f64>().expect("t")));
+        let row: Vec<String> = l
+            .split(',')
+            .enumerate()
+            .map(|(i, v)| if wheels.contains(&i) { (2.0 * v.parse::<f64>().expect("n")).to_string() } else { v.into() })
+            .collect();
+        slow.push_str(&(row.join(",") + "\n"));
     }
     let bad = dir.path().join("slow.csv");
     std::fs::write(&bad, slow).expect("write");

@@ -400,7 +400,9 @@ def calibrate(
     - ``holdout`` (``"first-half"`` | ``"second-half"``: the half held out
       for validation) or ``validate_on`` (another :class:`Drive`, or a list
       of them: Ē_p over all of them, and per drive in the report's
-      ``"validate_on"``, named ``validate_on[i]``). The drives, and the
+      ``"validate_on"``, named ``validate_on[i]``; each at the sample rate
+      of ``drive``, as validation segments are counted in samples, else
+      :class:`OdocalError`). The drives, and the
       ``validate_on`` drives, must count wheel revolutions alike (their
       manifests' ``[wheels]`` scale, e.g. ``ticks_per_rev``: c_e, c_d and d
       are per model revolution); others raise :class:`OdocalError`;
@@ -446,7 +448,9 @@ def calibrate(
     ``"validation"``), the file it was read from and its
     :attr:`Drive.fingerprint`. The same drive given twice (in ``drive``, or
     as a ``validate_on`` copy of a calibration drive) raises
-    :class:`OdocalError` naming both.
+    :class:`OdocalError` naming both, and so does a drive that shares more
+    than 1 % of its samples with another (a part of it, or a copy thinned
+    to every n-th sample), naming the fraction.
 
     Raises :class:`OdocalError` (a ``ValueError``) with the library's
     message naming the option for bad options, or for data the method cannot

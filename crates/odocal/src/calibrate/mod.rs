@@ -403,7 +403,10 @@ impl<'a> Calibration<'a> {
     /// Invalid options, a drive too short or without the data a method
     /// needs, numerical failures; with validation drives, also those of
     /// joining them ([`Drive::concat`]) and of their validation; both a
-    /// hold-out and validation drives: [`Error::InvalidOption`].
+    /// hold-out and validation drives: [`Error::InvalidOption`]; a
+    /// validation drive ([`Holdout::Other`], `validate_on`) whose sample
+    /// time differs from `drive`'s by more than 1 %: [`Error::InvalidDrive`]
+    /// naming it (validation segments are counted in samples).
     pub fn run(self) -> Result<CalibrationReport> {
         let mut report = self.run_joint()?;
         // The separate fits need the drives whole: not with a half held out.
@@ -422,6 +425,9 @@ impl<'a> Calibration<'a> {
             return match self.holdout {
                 None => calibrate_core(self.drive, None, self.options, self.progress),
                 Some(h) => {
+                    if let Holdout::Other(other) = h {
+                        self.drive.refuse_other_rate("the held-out drive", other)?;
+                    }
                     let (fit, held) = h.split(self.drive)?;
                     calibrate_core(&fit, Some((&held, None)), self.options, self.progress)
                 }

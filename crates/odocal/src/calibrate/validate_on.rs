@@ -93,6 +93,9 @@ pub(super) fn calibrate_validated_on(
     if validation.is_empty() {
         return Err(Error::NoSegments("no validation drive given".into()));
     }
+    for v in validation {
+        drive.refuse_other_rate(&format!("validation drive {}", v.name), v.drive)?;
+    }
     let given = given.intersection(ParamSet::EXTRINSICS);
     let mut held = HeldOutDrives::new(validation, given)?;
     held.carry_heading_offset = carry_heading_offset;

@@ -102,6 +102,29 @@ impl Drive {
     }
 }
 
+impl Drive {
+    /// Refuses a drive `held` (named `name`) that validates a calibration
+    /// of this drive at another sample rate (its sample time differs by
+    /// more than 1 %), as [`Drive::concat`] refuses drives fitted together:
+    /// validation segments are counted in samples, so at another rate they
+    /// span another length of time and their Ē_p is not comparable.
+    pub(crate) fn refuse_other_rate(&self, name: &str, held: &Drive) -> Result<()> {
+        let (ts, th) = (self.sample_time_s, held.sample_time_s);
+        if (th - ts).abs() <= STEP_UNIFORMITY_TOL * ts {
+            return Ok(());
+        }
+        Err(Error::InvalidDrive {
+            context: name.to_string(),
+            reason: format!(
+                "its sample time is {th:.6} s, the calibration drive's {ts:.6} s; drives fitted or validated \
+                 together must share one sample rate (validation segments are counted in samples, so at another \
+                 rate they span another length of drive and Ē_p is not comparable): resample it to the \
+                 calibration drive's rate, e.g. the manifest's [output] rate_hz"
+            ),
+        })
+    }
+}
+
 fn append(to: &mut Signals, from: &Signals) {
     to.px.extend_from_slice(&from.px);
     to.py.extend_from_slice(&from.py);
@@ -179,5 +202,13 @@ mod tests {
         assert!(e.to_string().contains("drive 2 has a sample time of 0.010000 s, drive 1 0.025000 s"), "{e}");
         assert!(Drive::concat(&[]).is_err());
         assert_eq!(Drive::concat(&[&a]).expect("one"), a);
+    }
+
+    #[test]
+    fn a_validation_drive_at_another_rate_is_an_error() {
+        let a = drive(100, 0.0, 0.025, vec![0..100]);
+        a.refuse_other_rate("v.csv", &drive(50, 0.0, 0.0251, vec![0..50])).expect("within 1 %");
+        let e = a.refuse_other_rate("v.csv", &drive(50, 0.0, 0.05, vec![0..50])).expect_err("half the rate");
+        assert!(e.to_string().starts_with("v.csv: its sample time is 0.050000 s, the calibration drive's 0.025000 s"));
     }
 }

@@ -6,6 +6,7 @@ use std::ops::Range;
 
 use sha2::{Digest, Sha256};
 
+use super::shared::{self, SampleSet};
 use super::{Drive, SIGNAL_NAMES};
 use crate::error::{Error, Result};
 
@@ -109,10 +110,21 @@ impl Fingerprinter {
 /// headings within 1 mrad, after a shift of at most 2 samples) and each
 /// rear wheel's rotation within 0.5 %.
 ///
+///
+/// Two drives that share samples are refused too: a part of a drive, or a
+/// copy thinned to every n-th sample, is not another drive, whatever its
+/// time stamps or sample rate. A sample is known by the bits of its
+/// reference position and rear wheel readings `(p_x, p_y, n_rl, n_rr)`;
+/// standing samples (both wheel readings 0) and samples that repeat within
+/// their own drive are not counted. Two drives may share at most 1 % of
+/// the samples of the one with fewer (and always up to 9). The check takes
+/// time and memory linear in the drives' lengths.
+///
 /// # Errors
 /// [`Error::DuplicateDrive`] naming the first drive and the one that
 /// repeats it; [`Error::SameSamples`] for the same samples under another
-/// fingerprint.
+/// fingerprint; [`Error::SharedSamples`] naming the drive that shares its
+/// samples, the drive that holds them and the fraction shared.
 pub fn refuse_duplicates(drives: &[(&str, &Drive)]) -> Result<Vec<String>> {
     let prints: Vec<String> = drives.iter().map(|(_, d)| d.fingerprint()).collect();
     for (k, fp) in prints.iter().enumerate() {
@@ -134,7 +146,31 @@ pub fn refuse_duplicates(drives: &[(&str, &Drive)]) -> Result<Vec<String>> {
             }
         }
     }
+    refuse_shared_samples(drives)?;
     Ok(prints)
+}
+
+/// Refuses two of `drives` that share samples ([`shared::overlap`]),
+/// naming the one with fewer samples as the part.
+fn refuse_shared_samples(drives: &[(&str, &Drive)]) -> Result<()> {
+    if drives.len() < 2 {
+        return Ok(());
+    }
+    let sets: Vec<SampleSet> = drives.iter().map(|(_, d)| SampleSet::of(d)).collect();
+    for k in 1..drives.len() {
+        for first in 0..k {
+            if let Some((first_is_part, shared, samples)) = shared::overlap(&sets[first], &sets[k]) {
+                let (part, whole) = if first_is_part { (first, k) } else { (k, first) };
+                return Err(Error::SharedSamples {
+                    part: drives[part].0.to_string(),
+                    whole: drives[whole].0.to_string(),
+                    shared,
+                    samples,
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Reference positions that differ by at most this much are the same, m:
@@ -278,7 +314,8 @@ mod tests {
 
     #[test]
     fn duplicates_are_named() {
-        let (a, b) = (drive(30, 0.0), drive(30, 1.0));
+        // Paths 0.1 m apart: no sample of one is a sample of the other.
+        let (a, b) = (drive(30, 0.0), drive(30, 0.1));
         let prints = refuse_duplicates(&[("a.csv", &a), ("b.csv", &b)]).expect("distinct");
         assert_eq!(prints, vec![a.fingerprint(), b.fingerprint()]);
         let e = refuse_duplicates(&[("a.csv", &a), ("b.csv", &b), ("the --validate-on drive c.csv", &a)])
@@ -321,5 +358,43 @@ mod tests {
         assert_eq!(same_samples(&a, &read_another_way(&a, 0, 1.01)), None);
         assert_eq!(same_samples(&a, &drive(400, 0.01)), None);
         assert!(refuse_duplicates(&[("a.csv", &a), ("b.csv", &drive(400, 0.01))]).is_ok());
+    }
+
+    /// A drive with its samples `keep` (its time counted from `t0`, its
+    /// sample time `step` times `a`'s).
+    fn samples_of(a: &Drive, keep: impl Iterator<Item = usize>, t0: f64, step: usize) -> Drive {
+        let m = a.measured();
+        let rows: Vec<usize> = keep.collect();
+        let s: Signals = rows.iter().map(|&i| [m.px[i], m.py[i], m.psi[i], m.n_rl[i], m.n_rr[i], 0.0, 0.0]).collect();
+        let t = (0..rows.len()).map(|k| t0 + k as f64 * a.sample_time_s() * step as f64).collect();
+        crate::drive::DriveBuilder { t, measured: s, ..Default::default() }.build().expect("valid")
+    }
+
+    #[test]
+    fn a_part_or_a_thinned_copy_is_refused_naming_both_and_the_fraction() {
+        let a = drive(4000, 0.0);
+        let part = samples_of(&a, 0..1880, 50.0, 1);
+        let e = refuse_duplicates(&[("a.csv", &a), ("the --validate-on drive part.csv", &part)])
+            .expect_err("a part")
+            .to_string();
+        assert!(
+            e.starts_with("the --validate-on drive part.csv shares 100 % of its samples with a.csv (1880 of its"),
+            "{e}"
+        );
+        assert!(e.contains("held-out data must be a different drive"), "{e}");
+        // The part given first, at another rate: still the part that is named.
+        let thinned = samples_of(&a, (0..4000).step_by(2), 0.0, 2);
+        let e = refuse_duplicates(&[("drive 1 (half.csv)", &thinned), ("drive 2 (a.csv)", &a)])
+            .expect_err("thinned")
+            .to_string();
+        assert!(e.starts_with("drive 1 (half.csv) shares 100 % of its samples with drive 2 (a.csv)"), "{e}");
+        // Half of each drive shared.
+        let longer = drive(8000, 0.0);
+        let e = refuse_duplicates(&[("a.csv", &a), ("b.csv", &samples_of(&longer, 2000..6000, 0.0, 1))]);
+        let e = e.expect_err("half shared").to_string();
+        assert!(e.starts_with("b.csv shares 50 % of its samples with a.csv (2000 of its 4000 moving"), "{e}");
+        // A drive that goes on where another ends shares nothing.
+        let next = samples_of(&longer, 4000..8000, 0.0, 1);
+        assert!(refuse_duplicates(&[("a.csv", &a), ("b.csv", &next)]).is_ok());
     }
 }

@@ -50,6 +50,7 @@ pub(crate) mod csv_lines;
 pub(crate) mod fingerprint;
 pub(crate) mod plausibility;
 pub mod segment;
+pub(crate) mod shared;
 pub(crate) mod stream;
 
 use std::ops::Range;
