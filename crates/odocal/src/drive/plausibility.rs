@@ -162,22 +162,30 @@ fn conventions(drive: &Drive, (theta0, name): (&Theta, &str), context: &str, fir
     // it passed.
     let (stalled, moving) =
         rayon::join(|| stalled_signal(drive, (theta0, name), first), || moving_samples(drive, theta0));
-    if let Some(reason) = stalled {
-        return Err(Error::InvalidDrive { context: context.to_string(), reason });
-    }
-    if moving.len() < 200 {
-        return Ok(());
-    }
-    let mut ratios: Vec<f64> = moving.iter().map(|m| m.0).collect();
-    let mut offsets: Vec<f64> = moving.iter().map(|m| m.1).collect();
-    let yaw: Vec<(f64, f64)> = moving.iter().filter_map(|m| m.2).collect();
     // The upper median: the value a full sort puts at len / 2.
     let median = |v: &mut Vec<f64>| {
         let mid = v.len() / 2;
         *v.select_nth_unstable_by(mid, f64::total_cmp).1
     };
     let fail = |reason: String| Err(Error::InvalidDrive { context: context.to_string(), reason });
-    let ratio = median(&mut ratios);
+    let mut ratios: Vec<f64> = moving.iter().map(|m| m.0).collect();
+    let ratio = (moving.len() >= 200).then(|| median(&mut ratios));
+    if let Some(reason) = stalled {
+        // A stall is judged at θ_0: with θ_0's c_e far off (or the wheels in
+        // other units) the whole drive looks like one. Say that first.
+        return match ratio.filter(|r| !(0.5..=2.0).contains(r)) {
+            Some(r) => fail(format!(
+                "the wheel speed at {name} is {r:.3} × the reference speed (median over the drive): wheel speeds \
+                 not in rev/s, or the c_e of {name} far off (check the θ given: --theta0, --theta or a parameter file); at {name} {reason}"
+            )),
+            None => fail(reason),
+        };
+    }
+    let Some(ratio) = ratio else {
+        return Ok(());
+    };
+    let mut offsets: Vec<f64> = moving.iter().map(|m| m.1).collect();
+    let yaw: Vec<(f64, f64)> = moving.iter().filter_map(|m| m.2).collect();
     if ratio < 0.0 {
         return fail(format!(
             "the wheels turn backwards while the reference moves (wheel speed / reference speed, median {ratio:.3}): \
@@ -701,6 +709,22 @@ mod tests {
         };
         named(8, "lag", 0.2);
         named(-40, "lead", 1.0);
+    }
+
+    /// A θ_0 whose c_e is ten times off (or a tenth) makes the whole drive
+    /// look like a stall of the reference (or of the wheels); the message
+    /// names the wheel-speed ratio and θ_0's c_e first.
+    #[test]
+    fn a_c_e_far_off_is_named_before_a_stall() {
+        let sim = crate::sim::simulate(&crate::sim::SimOptions { length_km: 3.0, ..crate::sim::SimOptions::paper(1) })
+            .expect("sim");
+        for (c_e, ratio) in [(20.0, "10.1"), (0.2, "0.10")] {
+            let th = Theta { c_e, ..Theta::PAPER_INITIAL };
+            assert!(stalled_signal(&sim.drive, (&th, "θ_0"), 0).is_some(), "c_e {c_e} looks like a stall");
+            let m = check_conventions(&sim.drive, &th, "d").expect_err("c_e far off").to_string();
+            assert!(m.contains(&format!("the wheel speed at θ_0 is {ratio}")), "{m}");
+            assert!(m.contains("the c_e of θ_0 far off (check the θ given"), "{m}");
+        }
     }
 
     #[test]
