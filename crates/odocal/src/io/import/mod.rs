@@ -564,10 +564,25 @@ impl OnGrid {
         }
         .build()
         .map_err(|e| match e {
-            Error::InvalidSample { context, column, sample, reason } => Error::InvalidDrive {
-                context,
-                reason: format!("{column} at t = {:.3} s: {reason}", t_of.get(sample).copied().unwrap_or(f64::NAN)),
-            },
+            Error::InvalidSample { context, column, sample, reason } => {
+                let t = t_of.get(sample).copied().unwrap_or(f64::NAN);
+                // Without [pose.heading] the heading is the direction between
+                // consecutive positions, not a column that could be in degrees.
+                let reason = if column == "psi" && m.pose.heading.is_none() {
+                    format!(
+                        "the heading derived from the positions (the manifest has no [pose.heading]) turns too \
+                         fast: {}; the direction between consecutive positions is their noise where they are \
+                         close together: give the pose's heading ([pose.heading]), or raise \
+                         pose.derive_heading_min_speed_m_per_s (here {} m/s) to hold the heading through slower \
+                         stretches",
+                        reason.split(':').next().unwrap_or(&reason),
+                        m.pose.derive_heading_min_speed_m_per_s
+                    )
+                } else {
+                    reason
+                };
+                Error::InvalidDrive { context, reason: format!("{column} at t = {t:.3} s: {reason}") }
+            }
             e => e,
         })
     }

@@ -424,6 +424,31 @@ fn a_heading_in_the_wrong_unit_is_warned_at_import() {
     assert!(refused(&w) && w.iter().any(|w| w.contains("the heading differs from the direction of travel")), "{w:?}");
 }
 
+/// A heading derived from positions whose steps are their noise (2 m/s at
+/// 40 Hz, ±10 cm of zig-zag across the track) is named as derived, with
+/// the settings that help, not as a heading column in degrees.
+#[test]
+fn a_derived_heading_that_turns_too_fast_is_named_as_derived() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let (mut w, mut p) = (String::from("t,left,right\n"), String::from("t,x,y,q\n"));
+    for i in 0..1000 {
+        writeln!(w, "{},1,1", i as f64 / 100.0).expect("write");
+    }
+    for i in 0..400 {
+        let across = if i % 2 == 0 { 0.1 } else { -0.1 };
+        writeln!(p, "{},{},{across},1", i as f64 / 40.0, i as f64 * 0.05).expect("write");
+    }
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    std::fs::write(dir.path().join("p.csv"), p).expect("write");
+    let text = std::fs::read_to_string(&path).expect("read");
+    std::fs::write(&path, text.replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 40.0")).expect("write");
+    let e = load_drive(&path).expect_err("a heading of noise").to_string();
+    assert!(e.contains("psi at t = ") && e.contains("the heading derived from the positions"), "{e}");
+    assert!(e.contains("[pose.heading]") && e.contains("derive_heading_min_speed_m_per_s (here 1 m/s)"), "{e}");
+    assert!(!e.contains("degrees"), "{e}");
+}
+
 /// A fixed clock offset's estimate, only reported, is skipped with a note
 /// when its search would exceed the correlation budget; `"auto"` is still
 /// refused there.
