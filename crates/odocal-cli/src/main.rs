@@ -264,7 +264,10 @@ fn one_line(e: &anyhow::Error) -> String {
         }
         line.push_str(&text);
     }
-    line.replace('\n', " ")
+    // On one line, and with any control character a path or a value carried
+    // into the message escaped visibly: a file name holding `ESC[2J` must
+    // not clear the user's terminal.
+    odocal::output::visible(&line.replace('\n', " ")).into_owned()
 }
 
 fn run(cli: Cli) -> Result<Outcome> {

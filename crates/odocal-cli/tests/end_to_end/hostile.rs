@@ -87,6 +87,18 @@ fn control_characters_in_names_are_escaped_when_echoed() {
     assert!(!e.contains('\u{1b}') && e.contains("p\\u{1b}[2Jx"), "{e}");
 }
 
+/// A file name with a control character, echoed in an error, is escaped
+/// as the names read from files are.
+#[test]
+fn control_characters_in_a_path_are_escaped_in_the_error() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let missing = dir.path().join("d\u{1b}[31m.csv");
+    let o = odocal(&["calibrate", s(&missing)]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(!e.contains('\u{1b}') && e.contains("d\\u{1b}[31m.csv"), "{e}");
+}
+
 #[test]
 fn a_closed_stdout_ends_the_command_quietly() {
     let m = Path::new(env!("CARGO_MANIFEST_DIR")).join("../odocal/tests/data/psu-mapping-van/manifest.toml");
