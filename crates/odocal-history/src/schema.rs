@@ -108,8 +108,18 @@ pub(super) enum Found {
 }
 
 /// Looks at the file on `conn` without changing it: its schema version,
-/// its `application_id` (odocal sets none) and the tables it holds.
+/// its `application_id` (odocal sets none) and the tables it holds, read
+/// in one transaction, so that another process creating the history at
+/// the same moment is seen before or after its migration, never between
+/// its tables and its schema version.
 pub(super) fn inspect(conn: &Connection) -> rusqlite::Result<Found> {
+    let tx = conn.unchecked_transaction()?;
+    let found = inspect_in(&tx);
+    tx.commit()?;
+    found
+}
+
+fn inspect_in(conn: &Connection) -> rusqlite::Result<Found> {
     let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
     let application_id: i64 = conn.query_row("PRAGMA application_id", [], |r| r.get(0))?;
     let mut st = conn.prepare(
