@@ -43,7 +43,7 @@ impl Drive {
         let first = drives.first().ok_or_else(|| invalid("no drives given".into()))?;
         let ts = first.sample_time_s;
         for (i, d) in drives.iter().enumerate().skip(1) {
-            if (d.sample_time_s - ts).abs() > STEP_UNIFORMITY_TOL * ts {
+            if !first.shares_rate_with(d) {
                 return Err(invalid(format!(
                     "drive {} has a sample time of {:.6} s, drive 1 {ts:.6} s; drives fitted or validated \
                      together must share one sample rate (resample them, e.g. the manifest's [output] rate_hz)",
@@ -100,19 +100,24 @@ impl Drive {
         joined.drive_time_shifts_s = shifts;
         Ok(joined)
     }
-}
 
-impl Drive {
+    /// Whether `other`'s sample time is this drive's to within 1 %
+    /// (`STEP_UNIFORMITY_TOL`): the drives can be fitted or validated
+    /// together.
+    fn shares_rate_with(&self, other: &Drive) -> bool {
+        (other.sample_time_s - self.sample_time_s).abs() <= STEP_UNIFORMITY_TOL * self.sample_time_s
+    }
+
     /// Refuses a drive `held` (named `name`) that validates a calibration
     /// of this drive at another sample rate (its sample time differs by
     /// more than 1 %), as [`Drive::concat`] refuses drives fitted together:
     /// validation segments are counted in samples, so at another rate they
     /// span another length of time and their Ē_p is not comparable.
     pub(crate) fn refuse_other_rate(&self, name: &str, held: &Drive) -> Result<()> {
-        let (ts, th) = (self.sample_time_s, held.sample_time_s);
-        if (th - ts).abs() <= STEP_UNIFORMITY_TOL * ts {
+        if self.shares_rate_with(held) {
             return Ok(());
         }
+        let (ts, th) = (self.sample_time_s, held.sample_time_s);
         Err(Error::InvalidDrive {
             context: name.to_string(),
             reason: format!(

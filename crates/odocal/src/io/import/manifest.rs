@@ -778,7 +778,7 @@ impl Manifest {
         })?;
         m.path = path.to_path_buf();
         // The deserializer left byte offsets.
-        let line_of = |at: usize| text.get(..at).unwrap_or(text).matches('\n').count() + 1;
+        let line_of = |at: usize| crate::io::toml_text::line_column(text, at).0;
         if let Some(n) = &mut m.noise {
             n.line = n.line.map(line_of);
         }

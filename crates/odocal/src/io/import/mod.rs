@@ -446,19 +446,12 @@ pub(crate) fn import_drive(m: &Manifest) -> Result<ImportedDrive> {
 /// reported, is skipped instead: [`clock::align`]).
 fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Result<()> {
     let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), wheel_t);
-    limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), pose_t))?;
-    let clock_samples = ((wheel_span.end - wheel_span.start) / h).floor();
-    limits::check_samples(
-        m,
-        &format!("{} (the clock-offset search grid)", wheel_span.name),
-        wheel_span.end - wheel_span.start,
-    )?;
-    limits::check_samples_per_row(
-        m,
-        wheel_span.end - wheel_span.start,
-        (&wheel_span.name, wheel_t.len()),
-        (&format!("streams.{} (pose)", m.pose.stream), pose_t.len()),
-    )?;
+    let pose_span = grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), pose_t);
+    limits::check_overlap(m, &wheel_span, &pose_span)?;
+    let wheel_s = wheel_span.end - wheel_span.start;
+    let clock_samples = (wheel_s / h).floor();
+    limits::check_samples(m, &format!("{} (the clock-offset search grid)", wheel_span.name), wheel_s)?;
+    limits::check_samples_per_row(m, wheel_s, (&wheel_span.name, wheel_t.len()), (&pose_span.name, pose_t.len()))?;
     match m.output.clock_offset {
         ClockOffset::Auto => limits::check_correlation(m, clock_samples as usize),
         ClockOffset::Seconds(_) => Ok(()),
