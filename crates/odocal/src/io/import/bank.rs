@@ -179,7 +179,7 @@ pub(crate) fn roll(
                 b.left,
                 b.right,
                 sep.len(),
-                b.baseline_m,
+                echo_num(b.baseline_m),
                 BankSpec::BASELINE_TOLERANCE * 100.0
             ),
         ));

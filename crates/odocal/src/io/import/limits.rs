@@ -219,7 +219,7 @@ pub(crate) fn short_span_hint<'a>(
             })
         })
         .collect();
-    let span = echo_num(span_s);
+    let span = echo_num((span_s * 1000.0).round() / 1000.0);
     if scaled.is_empty() {
         format!("; the streams overlap for only {span} s: check time_column, time_unit and time_offset_s")
     } else {

@@ -695,6 +695,8 @@ impl BankSpec {
     /// Largest relative disagreement between the median measured antenna
     /// separation and `baseline_m` (a wrong stream, column or baseline).
     pub(crate) const BASELINE_TOLERANCE: f64 = 0.1;
+    /// Largest `baseline_m`: two antennas on one vehicle, a few metres apart.
+    pub(crate) const MAX_BASELINE_M: f64 = 20.0;
     /// Upper bound of `max_roll_deg`.
     pub(crate) const MAX_ROLL_LIMIT_DEG: f64 = 45.0;
 }

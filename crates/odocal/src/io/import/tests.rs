@@ -1334,6 +1334,8 @@ fn bank_errors_name_the_key() {
     let e = edit("baseline_m = 1.5", "baseline_m = 3.0");
     let want = "lateral_acceleration.bank.baseline_m: the antennas of streams 'gl' and 'gr' are a median 1.";
     assert!(e.contains(want) && e.contains("not baseline_m = 3 "), "{e}");
+    let e = edit("baseline_m = 1.5", "baseline_m = 1e300");
+    assert!(e.contains("lateral_acceleration.bank.baseline_m: 1e300 is above the limit of 20"), "{e}");
     let e = err(0.0, "height_offset_m = 2.0");
     assert!(e.contains("lateral_acceleration.bank.height_offset_m: must be a finite number"), "{e}");
     let e = err(0.0, "max_roll_deg = 90");

@@ -267,12 +267,18 @@ impl Manifest {
             ));
         }
         self.require_positive(&format!("{K}.baseline_m"), b.baseline_m)?;
+        self.require_at_most(
+            &format!("{K}.baseline_m"),
+            b.baseline_m,
+            BankSpec::MAX_BASELINE_M,
+            "give the distance between the two antennas in metres",
+        )?;
         if !(b.height_offset_m.is_finite() && b.height_offset_m.abs() < b.baseline_m) {
             return Err(self.error(
                 &format!("{K}.height_offset_m"),
                 format!(
                     "must be a finite number of metres smaller in size than baseline_m = {}, found {}",
-                    b.baseline_m,
+                    echo_num(b.baseline_m),
                     echo_num(b.height_offset_m)
                 ),
             ));
@@ -305,7 +311,7 @@ impl Manifest {
         if v.is_finite() && v > 0.0 {
             Ok(())
         } else {
-            Err(self.error(key, format!("must be a positive number, found {v}")))
+            Err(self.error(key, format!("must be a positive number, found {}", echo_num(v))))
         }
     }
 
