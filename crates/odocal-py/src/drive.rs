@@ -34,6 +34,9 @@ pub(crate) struct Provenance {
     pub(crate) wheel_scale: Option<String>,
     /// The file the drive was read from (a CSV or a manifest), as given.
     pub(crate) source: Option<String>,
+    /// `source` made absolute against the working directory of the read:
+    /// the file the output checks protect wherever the process moves to.
+    pub(crate) file: Option<PathBuf>,
 }
 
 impl Provenance {
@@ -171,23 +174,36 @@ fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<(
 /// sample). Negative ids are the library's error (`DriveBuilder`), as
 /// for the CSV. Bools and anything else that is no number are refused.
 fn part_ids(v: &Bound<'_, PyAny>, samples: (usize, &str)) -> PyResult<Vec<i64>> {
+    crate::convert::refuse_masked("part", v, "sample")?;
     let array = v.py().import("numpy")?.call_method1("asarray", (v,))?;
     let kind: String = array.getattr("dtype")?.getattr("kind")?.extract()?;
+    let not_an_id = |i: usize, id: String| {
+        lib_err(odocal::Error::InvalidSample {
+            context: ARRAYS.into(),
+            column: "part".into(),
+            sample: i,
+            reason: format!("part id {id} is not a non-negative integer (parts are numbered 0, 1, 2, …)"),
+        })
+    };
     match kind.as_str() {
-        "i" | "u" => {
+        "i" => {
             let ids: PyArrayLike1<'_, i64, AllowTypeChange> = column("part", &array, Some(samples))?;
             Ok(ids.as_array().to_vec())
+        }
+        // Unsigned ids beyond i64 would wrap to negative ones: named as they are.
+        "u" => {
+            let ids: PyArrayLike1<'_, u64, AllowTypeChange> = column("part", &array, Some(samples))?;
+            ids.as_array()
+                .iter()
+                .enumerate()
+                .map(|(i, id)| i64::try_from(*id).map_err(|_| not_an_id(i, id.to_string())))
+                .collect()
         }
         "f" => {
             let ids: Column<'_> = column("part", &array, Some(samples))?;
             let ids = ids.as_array();
             if let Some(i) = ids.iter().position(|v| v.fract() != 0.0 || !(0.0..=1e15).contains(v)) {
-                return Err(lib_err(odocal::Error::InvalidSample {
-                    context: ARRAYS.into(),
-                    column: "part".into(),
-                    sample: i,
-                    reason: format!("part id {} is not a non-negative integer (parts are numbered 0, 1, 2, …)", ids[i]),
-                }));
+                return Err(not_an_id(i, ids[i].to_string()));
             }
             Ok(ids.iter().map(|v| *v as i64).collect())
         }
@@ -241,7 +257,7 @@ fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Prove
     let (sidecar, note) = odocal::sim::SimSidecar::for_drive(path, &drive);
     warnings.extend(note);
     let source = Some(path.display().to_string());
-    Ok((drive, Provenance { sidecar, source, ..Default::default() }, warnings))
+    Ok((drive, Provenance { sidecar, source, file: absolute(path), ..Default::default() }, warnings))
 }
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
@@ -253,7 +269,14 @@ fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> 
         .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
     let wheel_scale = Some(report.wheel_scale.clone());
     let source = Some(path.display().to_string());
-    Ok((drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source }))
+    let file = absolute(path);
+    Ok((drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source, file }))
+}
+
+/// `path` made absolute against the working directory now (not resolving
+/// links); `None` when the working directory cannot be read.
+fn absolute(path: &std::path::Path) -> Option<PathBuf> {
+    std::path::absolute(path).ok()
 }
 
 #[pymethods]
@@ -264,7 +287,9 @@ impl PyDrive {
     /// zeros; `part` holds per-sample part ids, non-negative integers as
     /// the CSV's `part` column (a new part starts where the id changes);
     /// `sample_time_s` is the nominal step when known. An argument longer
-    /// than [`MAX_ARRAY_SAMPLES`] is refused before any is converted.
+    /// than 50,000,000 samples is refused before any is converted; a numpy
+    /// masked array with masked values is refused (numpy would hand over
+    /// the values under its mask).
     ///
     /// Raises `OdocalError` naming the column and the sample, or naming the
     /// argument, its shape and the 1-D array expected for one that is not
@@ -557,6 +582,7 @@ impl PyDrive {
         state.set_item("import_report", self.prov.import_report.as_deref())?;
         state.set_item("wheel_scale", self.prov.wheel_scale.as_deref())?;
         state.set_item("source", self.prov.source.as_deref())?;
+        state.set_item("file", self.prov.file.as_deref())?;
         let ctor = py.import("odocal._odocal")?.getattr("_drive_from_state")?;
         Ok((ctor, (state,)))
     }
@@ -594,6 +620,7 @@ pub(crate) fn _drive_from_state(py: Python<'_>, state: &Bound<'_, PyDict>) -> Py
         import_report: get("import_report")?.extract()?,
         wheel_scale: get("wheel_scale")?.extract()?,
         source: state.get_item("source")?.map(|s| s.extract()).transpose()?.flatten(),
+        file: state.get_item("file")?.map(|s| s.extract()).transpose()?.flatten(),
     };
     let drive = py
         .detach(move || {

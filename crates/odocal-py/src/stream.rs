@@ -123,9 +123,20 @@ impl PyRawStream {
     /// with `part`, `start` (the index of the first among the drive's
     /// samples), `starts_part`, `reference_measured` (bool array) and
     /// `samples`, a dict of arrays `t`, `px`, `py`, `psi`, `n_rl`, `n_rr`,
-    /// `a_y`, `beta`: the arguments of `Calibrator.push`.
+    /// `a_y`, `beta`: the arguments of `Calibrator.push`. `max` is an
+    /// integer of at least 1; another raises `OdocalError`.
     #[pyo3(signature = (max=400))]
-    fn take_chunk<'py>(&mut self, py: Python<'py>, max: usize) -> PyResult<Option<Bound<'py, PyDict>>> {
+    fn take_chunk<'py>(
+        &mut self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = crate::convert::count)] max: usize,
+    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+        if max == 0 {
+            return Err(lib_err(odocal::Error::InvalidOption {
+                field: "max",
+                reason: "take_chunk(max) takes at least 1 sample, got 0".into(),
+            }));
+        }
         let Some(c) = self.raw.take_chunk(max) else { return Ok(None) };
         let d = PyDict::new(py);
         d.set_item("part", c.part)?;

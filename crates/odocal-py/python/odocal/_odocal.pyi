@@ -53,8 +53,9 @@ class Drive:
         mismatch, time that does not increase, a non-uniform step, a part id
         that is a fraction or negative, ...), naming the argument, its shape
         and the 1-D array expected for one that is not 1-D (a 2-D array, a
-        single number), and naming an argument of more than 50,000,000
-        samples before any is converted."""
+        single number), naming an argument of more than 50,000,000
+        samples before any is converted, and naming a numpy masked array
+        with masked values (numpy would hand over the values under its mask)."""
     @staticmethod
     def from_csv(path: _Path) -> Drive:
         """Reads a canonical CSV; a simulator sidecar beside it gives the true θ."""
@@ -196,7 +197,7 @@ class RawStream:
     def finish(self) -> None:
         """Ends every stream and the drive: the last samples become ready, ``report`` is set."""
     def take_chunk(self, max: int = 400) -> Optional[dict[str, Any]]:
-        """Up to ``max`` ready samples of one part, or None: ``part``, ``start``,
+        """Up to ``max`` (at least 1) ready samples of one part, or None: ``part``, ``start``,
         ``starts_part``, ``reference_measured`` and ``samples`` (arrays ``t``, ``px``,
         ``py``, ``psi``, ``n_rl``, ``n_rr``, ``a_y``, ``beta``: ``Calibrator.push``'s arguments)."""
     @property

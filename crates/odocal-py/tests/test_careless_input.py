@@ -1,0 +1,120 @@
+"""Careless input: what a hurried user passes is refused with an error that
+names the argument and says what it takes, and a drive's files stay safe
+wherever the process moves to."""
+
+import hashlib
+import inspect
+import pickle
+
+import numpy as np
+import pytest
+
+import odocal
+import odocal.online
+from conftest import REPO
+
+RUN = REPO / "examples" / "psu-mapping-van-testtrack" / "run-16-06-28.toml"
+
+
+def digest(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_a_drive_read_by_a_relative_path_keeps_its_files_safe_after_chdir(tmp_path, small_drive, monkeypatch):
+    folder = tmp_path / "drives"
+    folder.mkdir()
+    small_drive.to_csv(folder / "drive.csv")
+    before = digest(folder / "drive.csv")
+    monkeypatch.chdir(folder)
+    drive = odocal.Drive.from_csv("drive.csv")
+    assert drive.source == "drive.csv"  # as given, as the CLI's JSON names it
+    moved = pickle.loads(pickle.dumps(drive))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    report = odocal.calibrate(drive, "batch-gn")
+    for write in (
+        lambda: drive.to_csv(folder / "drive.csv"),
+        lambda: moved.to_csv(folder / "drive.csv"),
+        lambda: report.to_html(folder / "drive.csv"),
+        lambda: report.write_params(folder / "drive.json"),  # the sidecar
+    ):
+        with pytest.raises(odocal.OdocalError, match="would destroy that file"):
+            write()
+    assert digest(folder / "drive.csv") == before
+    # The same name in the new working directory is another file.
+    drive.to_csv("drive.csv")
+    assert (elsewhere / "drive.csv").exists()
+
+
+def test_masked_arrays_with_masked_values_are_refused(small_drive):
+    t, px, py, psi, n_rl, n_rr, beta, a_y = small_drive.to_numpy().T
+    holes = np.ma.masked_where((t > 5) & (t < 6), px)
+    with pytest.raises(odocal.OdocalError, match=r"px: a masked array with \d+ masked value\(s\), the first at sample 201"):
+        odocal.Drive.from_arrays(t, holes, py, psi, n_rl, n_rr, a_y)
+    part = np.ma.masked_where(t > 5, np.zeros(len(t), dtype=int))
+    with pytest.raises(odocal.OdocalError, match="part: a masked array"):
+        odocal.Drive.from_arrays(t, px, py, psi, n_rl, n_rr, a_y, part=part)
+    cal = odocal.online.Calibrator(sample_time_s=small_drive.sample_time_s)
+    with pytest.raises(odocal.OdocalError, match="px: a masked array"):
+        cal.push(t, holes, py, psi, n_rl, n_rr, a_y)
+    assert cal.summary["samples"] == 0
+    # A masked array without a masked value is its data.
+    plain = odocal.Drive.from_arrays(t, np.ma.masked_array(px), py, psi, n_rl, n_rr, a_y, beta=beta)
+    assert plain.fingerprint == small_drive.fingerprint
+
+
+def test_unsigned_part_ids_beyond_int64_are_named_as_they_are(small_drive):
+    t, px, py, psi, n_rl, n_rr, beta, a_y = small_drive.to_numpy().T
+    part = np.full(len(t), 2**63 + 5, dtype=np.uint64)
+    with pytest.raises(odocal.OdocalError, match="sample 0: part id 9223372036854775813 is not"):
+        odocal.Drive.from_arrays(t, px, py, psi, n_rl, n_rr, a_y, part=part)
+    small = (t > 100).astype(np.uint8)
+    assert len(odocal.Drive.from_arrays(t, px, py, psi, n_rl, n_rr, a_y, part=small).parts) == 2
+
+
+def test_theta_that_is_no_parameter_file_or_not_four_numbers_says_what_theta_takes(small_drive, tmp_path):
+    with pytest.raises(odocal.OdocalError, match=r"is not a parameter file: give the \.yaml, \.yml or \.json file"):
+        odocal.validate(small_drive, tmp_path)
+    with pytest.raises(odocal.OdocalError, match=r"shape \(1, 4\), where four numbers c_e, c_d, t_r, d"):
+        odocal.validate(small_drive, np.array([[2.0, 0.0, 1.6, 0.0]]))
+    with pytest.raises(odocal.OdocalError, match=r"shape \(1, 4\)"):
+        odocal.calibrate(small_drive, "batch-gn", theta0=np.array([[2.0, 0.0, 1.6, 0.0]]))
+    with pytest.raises(TypeError, match="complex"):
+        odocal.validate(small_drive, np.array([2.0, 0.0, 1.6, 0.0], dtype=complex))
+    as_list = odocal.validate(small_drive, [2.0, 0.0, 1.6, 0.0], fit_drive=False)
+    as_array = odocal.validate(small_drive, np.array([2.0, 0.0, 1.6, 0.0]), fit_drive=False)
+    assert as_array["mean_position_error_m"] == as_list["mean_position_error_m"]
+
+
+def test_a_progress_that_cannot_be_called_is_refused_before_the_calibration(small_drive):
+    with pytest.raises(TypeError, match=r"progress: give a function progress\(stage, done, total\) \(got str\)"):
+        odocal.calibrate(small_drive, progress="yes")
+
+
+def test_run_keywords_of_another_type_are_named(small_drive):
+    with pytest.raises(TypeError, match=r"carry_heading_offset: give True or False \(got str\)"):
+        odocal.calibrate(small_drive, "batch-gn", carry_heading_offset="yes")
+    with pytest.raises(TypeError, match=r"holdout: give \"first-half\" or \"second-half\" \(got int\)"):
+        odocal.calibrate(small_drive, "batch-gn", holdout=2)
+
+
+def test_take_chunk_takes_a_count_of_at_least_one():
+    raw = odocal.online.RawStream(RUN)
+    with pytest.raises(odocal.OdocalError, match="at least 1 sample, got 0"):
+        raw.take_chunk(0)
+    with pytest.raises(odocal.OdocalError, match="got -1"):
+        raw.take_chunk(-1)
+    with pytest.raises(TypeError, match="bool"):
+        raw.take_chunk(True)
+    assert raw.take_chunk(1) is None  # nothing pushed yet
+
+
+def test_help_shows_no_rust_doc_links():
+    objects = [odocal.Drive, odocal.online.Calibrator, odocal.online.RawStream, odocal._odocal.History]
+    for cls in objects:
+        for name, member in inspect.getmembers(cls):
+            doc = getattr(member, "__doc__", None) or ""
+            assert "[`" not in doc, f"{cls.__name__}.{name}: {doc}"
+    for f in (odocal._odocal.calibrate, odocal._odocal.validate, odocal.simulate, odocal.read_params):
+        assert "[`" not in (f.__doc__ or ""), f.__name__
