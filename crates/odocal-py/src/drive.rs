@@ -141,8 +141,10 @@ fn vec_f64(a: &Column<'_>) -> Vec<f64> {
 }
 
 /// Most samples `Drive.from_arrays` copies (about 3.2 GB of columns; 350 h
-/// at 40 Hz, 14 h at 1 kHz): checked before anything is copied, so a huge
-/// array raises instead of exhausting the memory.
+/// at 40 Hz, 14 h at 1 kHz), and `Calibrator.push` and
+/// `RawStream.push_messages` take in one call: checked before anything is
+/// copied, so a huge array (or a view of one value broadcast, which takes
+/// no memory until it is copied) raises instead of exhausting the memory.
 const MAX_ARRAY_SAMPLES: usize = 50_000_000;
 
 /// Every argument at most [`MAX_ARRAY_SAMPLES`] long, measured before
@@ -150,8 +152,13 @@ const MAX_ARRAY_SAMPLES: usize = 50_000_000;
 /// 400 MB of float64 per column first): `OdocalError` naming the argument
 /// otherwise. The length is a numpy array's first dimension or Python's
 /// `len()`; an argument without one is left to the conversion's errors
-/// (unequal lengths are the library's error, after the copy).
-fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<()> {
+/// (unequal lengths are the library's error, after the copy). `holds`
+/// names what would hold the samples and `advice` what to do instead.
+pub(crate) fn check_array_lengths(
+    args: &[(&str, Option<&Bound<'_, PyAny>>)],
+    holds: &str,
+    advice: &str,
+) -> PyResult<()> {
     for (name, v) in args {
         let Some(v) = v else { continue };
         let len = match v.cast::<numpy::PyUntypedArray>() {
@@ -160,8 +167,7 @@ fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<(
         };
         if let Some(n) = len.filter(|n| *n > MAX_ARRAY_SAMPLES) {
             return Err(crate::OdocalError::new_err(format!(
-                "{name} has {n} samples, more than the {MAX_ARRAY_SAMPLES} a drive from arrays may hold; split the \
-                 drive"
+                "{name} has {n} samples, more than the {MAX_ARRAY_SAMPLES} {holds}; {advice}"
             )));
         }
     }
@@ -311,17 +317,21 @@ impl PyDrive {
         #[pyo3(from_py_with = crate::convert::opt_real)] sample_time_s: Option<f64>,
     ) -> PyResult<Self> {
         // No argument longer than a drive from arrays may be, before numpy converts any.
-        check_array_lengths(&[
-            ("t", Some(t)),
-            ("px", Some(px)),
-            ("py", Some(py)),
-            ("psi", Some(psi)),
-            ("n_rl", Some(n_rl)),
-            ("n_rr", Some(n_rr)),
-            ("a_y", Some(a_y)),
-            ("beta", beta),
-            ("part", part),
-        ])?;
+        check_array_lengths(
+            &[
+                ("t", Some(t)),
+                ("px", Some(px)),
+                ("py", Some(py)),
+                ("psi", Some(psi)),
+                ("n_rl", Some(n_rl)),
+                ("n_rr", Some(n_rr)),
+                ("a_y", Some(a_y)),
+                ("beta", beta),
+                ("part", part),
+            ],
+            "a drive from arrays may hold",
+            "split the drive",
+        )?;
         // Each argument a 1-D array (else an error naming it and its shape), as long as t's.
         let t: Column<'_> = column("t", t, None)?;
         let n = Some((t.as_array().len(), "t"));

@@ -91,8 +91,9 @@ impl PyCalibrator {
     /// time (within 1 %), or a gap of more than 1.5 sample times, after
     /// which a new continuous part starts; without it, the samples follow
     /// the previous ones. Raises `OdocalError` for columns of different
-    /// lengths, values that are not finite, times that do not fit, or an
-    /// argument that is not 1-D (naming it and its shape).
+    /// lengths, values that are not finite, times that do not fit, an
+    /// argument that is not 1-D (naming it and its shape), or one of more
+    /// than 50,000,000 samples (before any is converted: push in chunks).
     #[pyo3(signature = (t, px, py, psi, n_rl, n_rr, a_y, beta=None))]
     #[allow(clippy::too_many_arguments)] // one argument per column, as Drive.from_arrays
     fn push(
@@ -107,6 +108,11 @@ impl PyCalibrator {
         a_y: &Bound<'_, PyAny>,
         beta: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
+        // No argument longer than one push takes, before numpy converts any.
+        let args = [("t", t), ("px", Some(px)), ("py", Some(py)), ("psi", Some(psi))];
+        let more = [("n_rl", Some(n_rl)), ("n_rr", Some(n_rr)), ("a_y", Some(a_y)), ("beta", beta)];
+        let (holds, advice) = ("one push takes", "push the samples in chunks");
+        crate::drive::check_array_lengths(&[args.as_slice(), more.as_slice()].concat(), holds, advice)?;
         // Each argument a 1-D array (else an error naming it and its shape), as long as px's.
         let px: Column<'_> = column("px", px, None)?;
         let n = px.as_array().len();

@@ -76,7 +76,8 @@ impl PyRawStream {
     /// Several messages of stream `stream` at once: times `t` (n, 1-D) and
     /// `values` (n × columns, 2-D; anything numpy converts to float64), as
     /// `push_message` one by one. Another shape raises `OdocalError`
-    /// naming the argument and its shape.
+    /// naming the argument and its shape, and so does an argument of more
+    /// than 50,000,000 messages (before any is converted).
     fn push_messages(
         &mut self,
         py: Python<'_>,
@@ -84,6 +85,9 @@ impl PyRawStream {
         t: &Bound<'_, PyAny>,
         values: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
+        // No more messages than one call takes, before numpy converts any.
+        let (holds, advice) = ("one call takes", "push the messages in chunks");
+        crate::drive::check_array_lengths(&[("t", Some(t)), ("values", Some(values))], holds, advice)?;
         // A 1-D t and a 2-D values (else an error naming the argument and its shape).
         let t: Column<'_> = column("t", t, None)?;
         let t = t.as_array().to_vec();

@@ -5,6 +5,7 @@ wherever the process moves to."""
 import hashlib
 import inspect
 import pickle
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -118,3 +119,25 @@ def test_help_shows_no_rust_doc_links():
             assert "[`" not in doc, f"{cls.__name__}.{name}: {doc}"
     for f in (odocal._odocal.calibrate, odocal._odocal.validate, odocal.simulate, odocal.read_params):
         assert "[`" not in (f.__doc__ or ""), f.__name__
+
+
+def test_a_push_of_a_huge_size_is_refused_before_anything_is_copied():
+    """A zero-stride view costs no memory until it is copied: Calibrator.push and
+    RawStream.push_messages measure it first, as Drive.from_arrays does."""
+    big = np.broadcast_to(np.int32(0), (50_000_001,))
+    small = np.zeros(10)
+    cal = odocal.online.Calibrator(sample_time_s=0.025)
+    raw = odocal.online.RawStream(RUN)
+    tracemalloc.start()
+    try:
+        with pytest.raises(odocal.OdocalError, match="^px has 50000001 samples, more than the 50000000 one push"):
+            cal.push(None, big, big, big, big, big, big)
+        with pytest.raises(odocal.OdocalError, match="^beta has 50000001 samples.*push the samples in chunks"):
+            cal.push(None, small, small, small, small, small, small, beta=big)
+        with pytest.raises(odocal.OdocalError, match="^t has 50000001 samples, more than the 50000000 one call"):
+            raw.push_messages("encoders", big, np.broadcast_to(np.int32(0), (50_000_001, 2)))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 20e6, f"{peak / 1e6:.0f} MB allocated before refusing"
+    assert cal.summary["samples"] == 0

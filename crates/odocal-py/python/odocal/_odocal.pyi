@@ -191,7 +191,8 @@ class RawStream:
     def push_messages(self, stream: str, t: _ArrayLike, values: _ArrayLike) -> None:
         """Several messages of ``stream``: times (n, 1-D) and values (n × columns, 2-D;
         converted to float64). Raises OdocalError naming the argument and its shape for
-        another shape."""
+        another shape, or naming an argument of more than 50,000,000 messages before any
+        is converted."""
     def end_stream(self, stream: str) -> None:
         """No more messages of ``stream`` come."""
     def finish(self) -> None:
@@ -245,7 +246,8 @@ class Calibrator:
         of more than 1.5 sample times, after which a new part starts. Raises OdocalError
         naming the argument and its shape for one that is not 1-D, and naming the column and
         the sample (its index in this push) for a value that is not finite or a time that
-        does not fit; a refused push takes no sample."""
+        does not fit, and naming an argument of more than 50,000,000 samples before any is
+        converted (push in chunks); a refused push takes no sample."""
     def push_drive(self, drive: Drive, chunk: int = 400) -> None:
         """A whole drive as a new drive, in chunks."""
     def new_drive(self) -> None:
