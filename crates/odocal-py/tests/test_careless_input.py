@@ -5,6 +5,7 @@ wherever the process moves to."""
 import hashlib
 import inspect
 import pickle
+import threading
 import tracemalloc
 
 import numpy as np
@@ -141,3 +142,69 @@ def test_a_push_of_a_huge_size_is_refused_before_anything_is_copied():
         tracemalloc.stop()
     assert peak < 20e6, f"{peak / 1e6:.0f} MB allocated before refusing"
     assert cal.summary["samples"] == 0
+
+
+def test_a_calibrator_used_from_several_threads_waits_for_a_running_push():
+    """A push runs without the GIL; a reader on another thread (a monitor, a
+    ROS callback) or a second pusher waits for it, never a borrow error."""
+    drive = odocal.simulate(seed=2, length_km=3.0, noise="off")
+    a = drive.to_numpy()
+    cal = odocal.online.Calibrator(sample_time_s=drive.sample_time_s)
+    alone = odocal.online.Calibrator(sample_time_s=drive.sample_time_s)
+    alone.push_drive(drive, chunk=20)
+    other = odocal.online.Calibrator(sample_time_s=drive.sample_time_s)
+    done, errors, reads = threading.Event(), [], []
+
+    def reader():
+        while not done.is_set():
+            try:
+                reads.append(cal.summary["samples"])
+                cal.theta, cal.heading_offset, cal.buffered_samples
+            except Exception as e:  # any error is the failure
+                errors.append(repr(e))
+                return
+
+    def pusher(start):
+        try:
+            for i in range(start, len(drive), 800):
+                c = a[i : i + 400]
+                other.push(None, c[:, 1], c[:, 2], c[:, 3], c[:, 4], c[:, 5], c[:, 7])
+        except Exception as e:
+            errors.append(repr(e))
+
+    threads = [threading.Thread(target=reader)] + [threading.Thread(target=pusher, args=(k,)) for k in (0, 400)]
+    for t in threads:
+        t.start()
+    cal.push_drive(drive, chunk=20)
+    done.set()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert reads and reads == sorted(reads)
+    assert cal.theta == alone.theta  # the reads change nothing
+    assert other.summary["samples"] == len(drive)
+
+
+def test_a_raw_stream_read_from_another_thread_waits_for_a_running_push():
+    raw = odocal.online.RawStream(RUN)
+    spec = raw.streams["encoders"]
+    data = np.genfromtxt(spec["file"], delimiter=",", names=True)
+    t = data[spec["time_column"]]
+    values = np.column_stack([data[c] for c in spec["columns"]])
+    done, errors = threading.Event(), []
+
+    def reader():
+        while not done.is_set():
+            try:
+                raw.held, raw.clock_offset, raw.report
+            except Exception as e:  # any error is the failure
+                errors.append(repr(e))
+                return
+
+    th = threading.Thread(target=reader)
+    th.start()
+    raw.push_messages("encoders", t, values)
+    done.set()
+    th.join()
+    assert errors == []
+    assert raw.held > 0

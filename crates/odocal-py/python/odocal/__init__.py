@@ -17,6 +17,8 @@ the same JSON report.
 
 Numeric work runs with the GIL released, so other Python threads keep
 running; a ``progress`` callback is only ever called on the calling thread.
+An ``online.Calibrator`` or ``online.RawStream`` used from another thread
+while it pushes waits for the push to end.
 """
 
 from __future__ import annotations

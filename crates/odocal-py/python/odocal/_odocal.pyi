@@ -172,7 +172,8 @@ def _write_params(
 
 class RawStream:
     """The streamed import (``odocal.online.RawStream``): a manifest's streams pushed
-    message by message, canonical samples taken as they become ready."""
+    message by message, canonical samples taken as they become ready. A call from another
+    thread while a push runs (without the GIL) waits for it."""
 
     def __init__(self, manifest: _Path, *, warm_up_s: Optional[float] = None) -> None:
         """The streamed import of the manifest at ``manifest`` (its streams are pushed,
@@ -213,7 +214,8 @@ class RawStream:
 
 class Calibrator:
     """The online calibrator (``odocal.online.Calibrator``): a recursive
-    Gauss-Newton over the calibration segments of a stream of samples."""
+    Gauss-Newton over the calibration segments of a stream of samples. A call from
+    another thread while a push runs (without the GIL) waits for it."""
 
     def __init__(
         self,
