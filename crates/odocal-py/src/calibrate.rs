@@ -92,9 +92,21 @@ fn plan(
             continue;
         }
         match key.as_str() {
-            "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
+            "holdout" => {
+                let half = v.extract::<String>().map_err(|_| {
+                    PyTypeError::new_err(format!(
+                        "holdout: give \"first-half\" or \"second-half\" (got {})",
+                        type_name(&v)
+                    ))
+                })?;
+                holdout = Some(parse_holdout(&half)?);
+            }
             "validate_on" => validate_on = Some(validation_drives(&v)?),
-            "carry_heading_offset" => carry_heading_offset = v.extract::<bool>()?,
+            "carry_heading_offset" => {
+                carry_heading_offset = v.extract::<bool>().map_err(|_| {
+                    PyTypeError::new_err(format!("carry_heading_offset: give True or False (got {})", type_name(&v)))
+                })?;
+            }
             // A seed as `simulate`'s: an int 0 … 2^64 − 1, the range named.
             k @ ("seed" | "bootstrap_seed") => {
                 keys.insert(key.clone(), crate::convert::seed_of(&v, k)?.into());
@@ -127,6 +139,11 @@ fn plan(
         validate_on: validate_on_drives.unwrap_or_default(),
         carry_heading_offset,
     })
+}
+
+/// The Python type name of `v`, for messages.
+fn type_name(v: &Bound<'_, PyAny>) -> String {
+    v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "value".into())
 }
 
 /// The CLI's JSON report: the library report plus `truth` (simulated
@@ -189,6 +206,13 @@ pub(crate) fn calibrate<'py>(
     #[pyo3(from_py_with = crate::convert::opt_threads)] threads: Option<usize>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
+    // A progress that cannot be called is refused before the calibration, not after it.
+    if let Some(p) = progress.as_ref().filter(|p| !p.bind(py).is_callable()) {
+        return Err(PyTypeError::new_err(format!(
+            "progress: give a function progress(stage, done, total) (got {})",
+            type_name(p.bind(py))
+        )));
+    }
     let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();
     let entries = distinct_drives(py, drive, validate_on.as_ref())?;
     let (inner, provs) = drives_arg(drive, "drive")?;

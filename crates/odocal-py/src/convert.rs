@@ -328,6 +328,7 @@ where
     T: numpy::Element,
     for<'a> numpy::PyArrayLike1<'py, T, numpy::AllowTypeChange>: FromPyObject<'a, 'py, Error = PyErr>,
 {
+    refuse_masked(name, v, "sample")?;
     let e = match v.extract() {
         Ok(a) => return Ok(a),
         Err(e) => e,
@@ -339,10 +340,35 @@ where
     Err(not_an_array_of(name, v, 1, &expected, &e))
 }
 
+/// Refuses a numpy masked array (`numpy.ma`) with masked values as the
+/// argument `name`: numpy converts it to the values under the mask, which
+/// would be taken as data. `OdocalError` naming how many are masked and
+/// the first (`unit`: "sample" of a column, "row" of a table).
+pub(crate) fn refuse_masked(name: &str, v: &Bound<'_, PyAny>, unit: &str) -> PyResult<()> {
+    let py = v.py();
+    // numpy.ma is imported with numpy; a module not loaded means no masked array.
+    let Some(ma) = py.import("sys")?.getattr("modules")?.get_item("numpy.ma").ok() else { return Ok(()) };
+    if !v.is_instance(&ma.getattr("MaskedArray")?)? {
+        return Ok(());
+    }
+    let masked = py.import("numpy")?.call_method1("argwhere", (ma.call_method1("getmaskarray", (v,))?,))?;
+    let count = masked.len()?;
+    if count == 0 {
+        return Ok(());
+    }
+    let first: Vec<usize> = masked.get_item(0)?.extract()?;
+    let at = first.first().map_or(String::new(), |i| format!(", the first at {unit} {i}"));
+    Err(OdocalError::new_err(format!(
+        "{name}: a masked array with {count} masked value(s){at}; numpy would hand over the values under the mask \
+         as data: drop those samples (a new part where samples are missing), or give the array without a mask"
+    )))
+}
+
 /// A table argument `name`: anything numpy makes a 2-D float64 array of,
 /// with `rows` rows (one per time). Anything else raises `OdocalError` as
 /// [`column`] does.
 pub(crate) fn table(name: &str, v: &Bound<'_, PyAny>, rows: usize) -> PyResult<numpy::ndarray::Array2<f64>> {
+    refuse_masked(name, v, "row")?;
     match v.extract::<numpy::PyArrayLike2<'_, f64, numpy::AllowTypeChange>>() {
         Ok(a) => Ok(a.as_array().to_owned()),
         Err(e) => Err(not_an_array_of(

@@ -34,6 +34,9 @@ pub(crate) struct Provenance {
     pub(crate) wheel_scale: Option<String>,
     /// The file the drive was read from (a CSV or a manifest), as given.
     pub(crate) source: Option<String>,
+    /// `source` made absolute against the working directory of the read:
+    /// the file the output checks protect wherever the process moves to.
+    pub(crate) file: Option<PathBuf>,
 }
 
 impl Provenance {
@@ -138,8 +141,10 @@ fn vec_f64(a: &Column<'_>) -> Vec<f64> {
 }
 
 /// Most samples `Drive.from_arrays` copies (about 3.2 GB of columns; 350 h
-/// at 40 Hz, 14 h at 1 kHz): checked before anything is copied, so a huge
-/// array raises instead of exhausting the memory.
+/// at 40 Hz, 14 h at 1 kHz), and `Calibrator.push` and
+/// `RawStream.push_messages` take in one call: checked before anything is
+/// copied, so a huge array (or a view of one value broadcast, which takes
+/// no memory until it is copied) raises instead of exhausting the memory.
 const MAX_ARRAY_SAMPLES: usize = 50_000_000;
 
 /// Every argument at most [`MAX_ARRAY_SAMPLES`] long, measured before
@@ -147,8 +152,13 @@ const MAX_ARRAY_SAMPLES: usize = 50_000_000;
 /// 400 MB of float64 per column first): `OdocalError` naming the argument
 /// otherwise. The length is a numpy array's first dimension or Python's
 /// `len()`; an argument without one is left to the conversion's errors
-/// (unequal lengths are the library's error, after the copy).
-fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<()> {
+/// (unequal lengths are the library's error, after the copy). `holds`
+/// names what would hold the samples and `advice` what to do instead.
+pub(crate) fn check_array_lengths(
+    args: &[(&str, Option<&Bound<'_, PyAny>>)],
+    holds: &str,
+    advice: &str,
+) -> PyResult<()> {
     for (name, v) in args {
         let Some(v) = v else { continue };
         let len = match v.cast::<numpy::PyUntypedArray>() {
@@ -157,8 +167,7 @@ fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<(
         };
         if let Some(n) = len.filter(|n| *n > MAX_ARRAY_SAMPLES) {
             return Err(crate::OdocalError::new_err(format!(
-                "{name} has {n} samples, more than the {MAX_ARRAY_SAMPLES} a drive from arrays may hold; split the \
-                 drive"
+                "{name} has {n} samples, more than the {MAX_ARRAY_SAMPLES} {holds}; {advice}"
             )));
         }
     }
@@ -171,23 +180,36 @@ fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<(
 /// sample). Negative ids are the library's error (`DriveBuilder`), as
 /// for the CSV. Bools and anything else that is no number are refused.
 fn part_ids(v: &Bound<'_, PyAny>, samples: (usize, &str)) -> PyResult<Vec<i64>> {
+    crate::convert::refuse_masked("part", v, "sample")?;
     let array = v.py().import("numpy")?.call_method1("asarray", (v,))?;
     let kind: String = array.getattr("dtype")?.getattr("kind")?.extract()?;
+    let not_an_id = |i: usize, id: String| {
+        lib_err(odocal::Error::InvalidSample {
+            context: ARRAYS.into(),
+            column: "part".into(),
+            sample: i,
+            reason: format!("part id {id} is not a non-negative integer (parts are numbered 0, 1, 2, …)"),
+        })
+    };
     match kind.as_str() {
-        "i" | "u" => {
+        "i" => {
             let ids: PyArrayLike1<'_, i64, AllowTypeChange> = column("part", &array, Some(samples))?;
             Ok(ids.as_array().to_vec())
+        }
+        // Unsigned ids beyond i64 would wrap to negative ones: named as they are.
+        "u" => {
+            let ids: PyArrayLike1<'_, u64, AllowTypeChange> = column("part", &array, Some(samples))?;
+            ids.as_array()
+                .iter()
+                .enumerate()
+                .map(|(i, id)| i64::try_from(*id).map_err(|_| not_an_id(i, id.to_string())))
+                .collect()
         }
         "f" => {
             let ids: Column<'_> = column("part", &array, Some(samples))?;
             let ids = ids.as_array();
             if let Some(i) = ids.iter().position(|v| v.fract() != 0.0 || !(0.0..=1e15).contains(v)) {
-                return Err(lib_err(odocal::Error::InvalidSample {
-                    context: ARRAYS.into(),
-                    column: "part".into(),
-                    sample: i,
-                    reason: format!("part id {} is not a non-negative integer (parts are numbered 0, 1, 2, …)", ids[i]),
-                }));
+                return Err(not_an_id(i, ids[i].to_string()));
             }
             Ok(ids.iter().map(|v| *v as i64).collect())
         }
@@ -241,7 +263,7 @@ fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Prove
     let (sidecar, note) = odocal::sim::SimSidecar::for_drive(path, &drive);
     warnings.extend(note);
     let source = Some(path.display().to_string());
-    Ok((drive, Provenance { sidecar, source, ..Default::default() }, warnings))
+    Ok((drive, Provenance { sidecar, source, file: absolute(path), ..Default::default() }, warnings))
 }
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
@@ -253,7 +275,14 @@ fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> 
         .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
     let wheel_scale = Some(report.wheel_scale.clone());
     let source = Some(path.display().to_string());
-    Ok((drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source }))
+    let file = absolute(path);
+    Ok((drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source, file }))
+}
+
+/// `path` made absolute against the working directory now (not resolving
+/// links); `None` when the working directory cannot be read.
+fn absolute(path: &std::path::Path) -> Option<PathBuf> {
+    std::path::absolute(path).ok()
 }
 
 #[pymethods]
@@ -264,7 +293,9 @@ impl PyDrive {
     /// zeros; `part` holds per-sample part ids, non-negative integers as
     /// the CSV's `part` column (a new part starts where the id changes);
     /// `sample_time_s` is the nominal step when known. An argument longer
-    /// than [`MAX_ARRAY_SAMPLES`] is refused before any is converted.
+    /// than 50,000,000 samples is refused before any is converted; a numpy
+    /// masked array with masked values is refused (numpy would hand over
+    /// the values under its mask).
     ///
     /// Raises `OdocalError` naming the column and the sample, or naming the
     /// argument, its shape and the 1-D array expected for one that is not
@@ -286,17 +317,21 @@ impl PyDrive {
         #[pyo3(from_py_with = crate::convert::opt_real)] sample_time_s: Option<f64>,
     ) -> PyResult<Self> {
         // No argument longer than a drive from arrays may be, before numpy converts any.
-        check_array_lengths(&[
-            ("t", Some(t)),
-            ("px", Some(px)),
-            ("py", Some(py)),
-            ("psi", Some(psi)),
-            ("n_rl", Some(n_rl)),
-            ("n_rr", Some(n_rr)),
-            ("a_y", Some(a_y)),
-            ("beta", beta),
-            ("part", part),
-        ])?;
+        check_array_lengths(
+            &[
+                ("t", Some(t)),
+                ("px", Some(px)),
+                ("py", Some(py)),
+                ("psi", Some(psi)),
+                ("n_rl", Some(n_rl)),
+                ("n_rr", Some(n_rr)),
+                ("a_y", Some(a_y)),
+                ("beta", beta),
+                ("part", part),
+            ],
+            "a drive from arrays may hold",
+            "split the drive",
+        )?;
         // Each argument a 1-D array (else an error naming it and its shape), as long as t's.
         let t: Column<'_> = column("t", t, None)?;
         let n = Some((t.as_array().len(), "t"));
@@ -557,6 +592,7 @@ impl PyDrive {
         state.set_item("import_report", self.prov.import_report.as_deref())?;
         state.set_item("wheel_scale", self.prov.wheel_scale.as_deref())?;
         state.set_item("source", self.prov.source.as_deref())?;
+        state.set_item("file", self.prov.file.as_deref())?;
         let ctor = py.import("odocal._odocal")?.getattr("_drive_from_state")?;
         Ok((ctor, (state,)))
     }
@@ -594,6 +630,7 @@ pub(crate) fn _drive_from_state(py: Python<'_>, state: &Bound<'_, PyDict>) -> Py
         import_report: get("import_report")?.extract()?,
         wheel_scale: get("wheel_scale")?.extract()?,
         source: state.get_item("source")?.map(|s| s.extract()).transpose()?.flatten(),
+        file: state.get_item("file")?.map(|s| s.extract()).transpose()?.flatten(),
     };
     let drive = py
         .detach(move || {

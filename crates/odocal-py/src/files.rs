@@ -18,10 +18,11 @@ use crate::lib_err;
 
 /// The files a drive was read from: its CSV and the simulator sidecar
 /// beside it, or its manifest, every stream file the manifest names and
-/// the parameter file its `[calibration] theta0` names.
+/// the parameter file its `[calibration] theta0` names. The files are those of the drive's path as it was read (`prov.file`),
+/// whatever the working directory is now.
 pub(crate) fn inputs_of(prov: &Provenance) -> Vec<FileRole> {
     let Some(src) = &prov.source else { return Vec::new() };
-    let path = Path::new(src);
+    let path = prov.file.as_deref().unwrap_or(Path::new(src));
     if odocal::is_manifest_path(path) {
         let mut out = vec![FileRole { role: format!("the manifest {src} of the drive"), path: path.into() }];
         if let Ok(m) = odocal::Manifest::from_path(path) {

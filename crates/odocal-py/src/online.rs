@@ -2,8 +2,10 @@
 //! ([`odocal_online::Calibrator`]) fed with numpy arrays, and its
 //! write-back gates ([`odocal_online::gate::Gates`]).
 
+use std::sync::{Mutex, MutexGuard};
+
 use numpy::PyArray2;
-use pyo3::exceptions::PyTypeError;
+use pyo3::exceptions::{PyRuntimeError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde::de::DeserializeOwned;
@@ -54,11 +56,24 @@ fn merge(base: &mut serde_json::Value, given: serde_json::Value, path: &str) -> 
 }
 
 /// The online calibrator: a recursive Gauss-Newton over the calibration
-/// segments of a stream of samples.
-#[pyclass(module = "odocal.online", name = "Calibrator")]
+/// segments of a stream of samples. One thread at a time uses it: a call
+/// from another thread while a push runs (without the GIL) waits for it.
+#[pyclass(module = "odocal.online", name = "Calibrator", frozen)]
 pub(crate) struct PyCalibrator {
-    cal: Calibrator,
+    cal: Mutex<Calibrator>,
     gates: Gates,
+}
+
+/// The calibrator behind `cal`, locked (a push holds it without the GIL).
+fn lock(cal: &Mutex<Calibrator>) -> PyResult<MutexGuard<'_, Calibrator>> {
+    cal.lock().map_err(|_| PyRuntimeError::new_err("the calibrator is poisoned by a panic"))
+}
+
+impl PyCalibrator {
+    /// The calibrator's status now.
+    fn status(&self) -> PyResult<odocal_online::Status> {
+        Ok(lock(&self.cal)?.status())
+    }
 }
 
 #[pymethods]
@@ -82,7 +97,7 @@ impl PyCalibrator {
         let opts: OnlineOptions = overlay(&OnlineOptions::default(), options, "options")?;
         let gates: Gates = overlay(&Gates::default(), gates, "gates")?;
         let cal = Calibrator::new(theta0, sigma0, sample_time_s, opts).map_err(lib_err)?;
-        Ok(PyCalibrator { cal, gates })
+        Ok(PyCalibrator { cal: Mutex::new(cal), gates })
     }
 
     /// Takes the next samples of the current drive, in time order: the
@@ -91,12 +106,13 @@ impl PyCalibrator {
     /// time (within 1 %), or a gap of more than 1.5 sample times, after
     /// which a new continuous part starts; without it, the samples follow
     /// the previous ones. Raises `OdocalError` for columns of different
-    /// lengths, values that are not finite, times that do not fit, or an
-    /// argument that is not 1-D (naming it and its shape).
+    /// lengths, values that are not finite, times that do not fit, an
+    /// argument that is not 1-D (naming it and its shape), or one of more
+    /// than 50,000,000 samples (before any is converted: push in chunks).
     #[pyo3(signature = (t, px, py, psi, n_rl, n_rr, a_y, beta=None))]
     #[allow(clippy::too_many_arguments)] // one argument per column, as Drive.from_arrays
     fn push(
-        &mut self,
+        &self,
         gil: Python<'_>,
         t: Option<&Bound<'_, PyAny>>,
         px: &Bound<'_, PyAny>,
@@ -107,6 +123,11 @@ impl PyCalibrator {
         a_y: &Bound<'_, PyAny>,
         beta: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
+        // No argument longer than one push takes, before numpy converts any.
+        let args = [("t", t), ("px", Some(px)), ("py", Some(py)), ("psi", Some(psi))];
+        let more = [("n_rl", Some(n_rl)), ("n_rr", Some(n_rr)), ("a_y", Some(a_y)), ("beta", beta)];
+        let (holds, advice) = ("one push takes", "push the samples in chunks");
+        crate::drive::check_array_lengths(&[args.as_slice(), more.as_slice()].concat(), holds, advice)?;
         // Each argument a 1-D array (else an error naming it and its shape), as long as px's.
         let px: Column<'_> = column("px", px, None)?;
         let n = px.as_array().len();
@@ -121,21 +142,21 @@ impl PyCalibrator {
         let samples =
             Signals { px: col(px), py: col(py), psi: col(psi), n_rl: col(n_rl), n_rr: col(n_rr), beta, a_y: col(a_y) };
         let t = t.map(col);
-        let cal = &mut self.cal;
-        gil.detach(|| cal.push(t.as_deref(), &samples)).map_err(lib_err)
+        let cal = &self.cal;
+        gil.detach(|| lock(cal)?.push(t.as_deref(), &samples).map_err(lib_err))
     }
 
     /// Pushes a whole `odocal.Drive` as a new drive, part by part, in
     /// chunks of `chunk` samples (what `odocal follow` does).
     #[pyo3(signature = (drive, chunk=400))]
     fn push_drive(
-        &mut self,
+        &self,
         gil: Python<'_>,
         drive: &Bound<'_, PyDrive>,
         #[pyo3(from_py_with = crate::convert::count)] chunk: usize,
     ) -> PyResult<()> {
         let d = std::sync::Arc::clone(&drive.get().drive);
-        let ts = self.cal.status().sample_time_s;
+        let ts = self.status()?.sample_time_s;
         if (d.sample_time_s() - ts).abs() > 1e-9 {
             return Err(OdocalError::new_err(format!(
                 "the drive's sample time {} s is not the calibrator's {} s",
@@ -143,64 +164,66 @@ impl PyCalibrator {
                 ts
             )));
         }
-        let cal = &mut self.cal;
-        gil.detach(|| cal.push_drive(&d, chunk, |_| {})).map_err(lib_err)
+        let cal = &self.cal;
+        gil.detach(|| lock(cal)?.push_drive(&d, chunk, |_| {}).map_err(lib_err))
     }
 
     /// Starts a new drive: the heading offset starts anew, the drive's
     /// counters are cleared; θ and its covariance carry over.
-    fn new_drive(&mut self) {
-        self.cal.begin_drive();
+    fn new_drive(&self) -> PyResult<()> {
+        lock(&self.cal)?.begin_drive();
+        Ok(())
     }
 
     /// Starts a new continuous part of the current drive (after a gap that
     /// `t` does not show).
-    fn new_part(&mut self) {
-        self.cal.begin_part();
+    fn new_part(&self) -> PyResult<()> {
+        lock(&self.cal)?.begin_part();
+        Ok(())
     }
 
     /// The current θ: `{"c_e", "c_d", "t_r", "d"}`.
     #[getter]
     fn theta<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.status().theta)?)
+        to_py(py, &json(&self.status()?.theta)?)
     }
 
     /// θ's standard deviation, same keys.
     #[getter]
     fn sigma<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.status().sigma)?)
+        to_py(py, &json(&self.status()?.sigma)?)
     }
 
     /// The 5×5 covariance of `[c_e, c_d, t_r, d, heading_offset]`.
     #[getter]
     fn covariance<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let rows: Vec<Vec<f64>> = self.cal.status().covariance.iter().map(|r| r.to_vec()).collect();
+        let rows: Vec<Vec<f64>> = self.status()?.covariance.iter().map(|r| r.to_vec()).collect();
         Ok(PyArray2::from_vec2(py, &rows)?)
     }
 
     /// The current drive's heading offset (reference minus vehicle) and its sd, rad.
     #[getter]
-    fn heading_offset(&self) -> (f64, f64) {
-        let s = self.cal.status();
-        (s.heading_offset_rad, s.heading_offset_sd_rad)
+    fn heading_offset(&self) -> PyResult<(f64, f64)> {
+        let s = self.status()?;
+        Ok((s.heading_offset_rad, s.heading_offset_sd_rad))
     }
 
     /// The sample time the calibrator was made for, s.
     #[getter]
-    fn sample_time_s(&self) -> f64 {
-        self.cal.status().sample_time_s
+    fn sample_time_s(&self) -> PyResult<f64> {
+        Ok(self.status()?.sample_time_s)
     }
 
     /// Informative (turning) driving folded in so far, s.
     #[getter]
-    fn informative_time_s(&self) -> f64 {
-        self.cal.status().informative_time_s
+    fn informative_time_s(&self) -> PyResult<f64> {
+        Ok(self.status()?.informative_time_s)
     }
 
     /// Samples held in the buffer (bounded, whatever the drive's length).
     #[getter]
-    fn buffered_samples(&self) -> usize {
-        self.cal.status().buffered_samples
+    fn buffered_samples(&self) -> PyResult<usize> {
+        Ok(self.status()?.buffered_samples)
     }
 
     /// What the calibrator saw of the current drive: `samples`,
@@ -208,14 +231,14 @@ impl PyCalibrator {
     /// `prequential_mean_position_error_m`, `stored_mean_position_error_m`.
     #[getter]
     fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.status().drive)?)
+        to_py(py, &json(&self.status()?.drive)?)
     }
 
     /// The drive's most recently scored validation segments, oldest first:
     /// dicts with `start_s`, `prequential_m`, `stored_m`.
     #[getter]
     fn recent_validation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.status().recent_validation)?)
+        to_py(py, &json(&self.status()?.recent_validation)?)
     }
 
     /// θ from the current drive's folded segments alone, without the prior
@@ -224,20 +247,21 @@ impl PyCalibrator {
     /// calibrator's; `None` until the drive determines every parameter.
     #[getter]
     fn drive_estimate<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.status().drive_estimate)?)
+        to_py(py, &json(&self.status()?.drive_estimate)?)
     }
 
     /// The parameters in use, compared with the online θ on each
     /// validation segment and by the gates (`None`: none).
     #[getter]
     fn get_stored<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.stored)?)
+        let stored = lock(&self.cal)?.stored;
+        to_py(py, &json(&stored)?)
     }
 
     #[setter]
-    fn set_stored(&mut self, theta: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+    fn set_stored(&self, theta: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
         let theta = theta.filter(|t| !t.is_none()).map(extract_theta).transpose()?;
-        self.cal.stored = theta;
+        lock(&self.cal)?.stored = theta;
         Ok(())
     }
 
@@ -259,18 +283,18 @@ impl PyCalibrator {
         stored: Option<&Bound<'_, PyAny>>,
         calibrated: bool,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let stored = match stored {
-            Some(s) => extract_theta(s)?,
-            None => self
-                .cal
-                .stored
-                .ok_or_else(|| OdocalError::new_err("no stored θ: give stored= or set calibrator.stored first"))?,
-        };
-        to_py(py, &json(&self.gates.decide(&self.cal, &stored, calibrated))?)
+        let given = stored.map(extract_theta).transpose()?;
+        let cal = lock(&self.cal)?;
+        let stored = given
+            .or(cal.stored)
+            .ok_or_else(|| OdocalError::new_err("no stored θ: give stored= or set calibrator.stored first"))?;
+        let decision = json(&self.gates.decide(&cal, &stored, calibrated))?;
+        drop(cal);
+        to_py(py, &decision)
     }
 
-    fn __repr__(&self) -> String {
-        let s = self.cal.status();
-        format!("<odocal.online.Calibrator {}>", s.theta.display_with_sigma(&s.sigma))
+    fn __repr__(&self) -> PyResult<String> {
+        let s = self.status()?;
+        Ok(format!("<odocal.online.Calibrator {}>", s.theta.display_with_sigma(&s.sigma)))
     }
 }

@@ -2,7 +2,10 @@
 //! ([`odocal::io::RawStream`]) fed message by message from Python, its
 //! canonical samples taken as numpy arrays.
 
+use std::sync::{Mutex, MutexGuard};
+
 use numpy::IntoPyArray;
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -13,13 +16,25 @@ use crate::convert::{column, json, not_an_array_of, table, to_py, Column};
 use crate::lib_err;
 
 /// The import of a manifest's streams as their messages arrive: canonical
-/// samples come out once every stream has passed their time.
-#[pyclass(module = "odocal.online", name = "RawStream")]
+/// samples come out once every stream has passed their time. One thread at
+/// a time uses it: a call from another thread while a push runs (without
+/// the GIL) waits for it.
+#[pyclass(module = "odocal.online", name = "RawStream", frozen)]
 pub(crate) struct PyRawStream {
-    raw: RawStream,
+    state: Mutex<State>,
     manifest: Manifest,
+}
+
+/// What a [`PyRawStream`] changes as messages arrive.
+struct State {
+    raw: RawStream,
     /// The import report, once `finish()` returned it.
     report: Option<odocal::ImportReport>,
+}
+
+/// The state behind `state`, locked (a push holds it without the GIL).
+fn lock(state: &Mutex<State>) -> PyResult<MutexGuard<'_, State>> {
+    state.lock().map_err(|_| PyRuntimeError::new_err("the stream is poisoned by a panic"))
 }
 
 #[pymethods]
@@ -37,7 +52,7 @@ impl PyRawStream {
     ) -> PyResult<Self> {
         let m = Manifest::from_path(&manifest).map_err(lib_err)?;
         let raw = RawStream::new(&m, warm_up_s).map_err(lib_err)?;
-        Ok(PyRawStream { raw, manifest: m, report: None })
+        Ok(PyRawStream { state: Mutex::new(State { raw, report: None }), manifest: m })
     }
 
     /// The streams the manifest reads: for each name, its `file`,
@@ -47,7 +62,7 @@ impl PyRawStream {
     fn streams<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let out = PyDict::new(py);
         let files = self.manifest.stream_files();
-        for (name, time_column, cols) in self.raw.columns() {
+        for (name, time_column, cols) in lock(&self.state)?.raw.columns() {
             let d = PyDict::new(py);
             d.set_item("file", files.iter().find(|(n, _)| n == name).map(|(_, f)| f))?;
             d.set_item("time_column", time_column)?;
@@ -64,26 +79,30 @@ impl PyRawStream {
     /// wrong number of values) or the row and column (the whole import's
     /// checks of the rows), or naming `values` and its shape when it is not
     /// a 1-D sequence of numbers.
-    fn push_message(&mut self, py: Python<'_>, stream: &str, t: f64, values: &Bound<'_, PyAny>) -> PyResult<()> {
+    fn push_message(&self, py: Python<'_>, stream: &str, t: f64, values: &Bound<'_, PyAny>) -> PyResult<()> {
         let values: Vec<f64> = values.extract().map_err(|e| {
             let expected = "a 1-D sequence of the stream's column values (streams[stream][\"columns\"])";
             not_an_array_of("values", values, 1, expected, &e)
         })?;
-        let raw = &mut self.raw;
-        py.detach(|| raw.push_message(stream, t, &values)).map_err(lib_err)
+        let state = &self.state;
+        py.detach(|| lock(state)?.raw.push_message(stream, t, &values).map_err(lib_err))
     }
 
     /// Several messages of stream `stream` at once: times `t` (n, 1-D) and
     /// `values` (n × columns, 2-D; anything numpy converts to float64), as
     /// `push_message` one by one. Another shape raises `OdocalError`
-    /// naming the argument and its shape.
+    /// naming the argument and its shape, and so does an argument of more
+    /// than 50,000,000 messages (before any is converted).
     fn push_messages(
-        &mut self,
+        &self,
         py: Python<'_>,
         stream: &str,
         t: &Bound<'_, PyAny>,
         values: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
+        // No more messages than one call takes, before numpy converts any.
+        let (holds, advice) = ("one call takes", "push the messages in chunks");
+        crate::drive::check_array_lengths(&[("t", Some(t)), ("values", Some(values))], holds, advice)?;
         // A 1-D t and a 2-D values (else an error naming the argument and its shape).
         let t: Column<'_> = column("t", t, None)?;
         let t = t.as_array().to_vec();
@@ -94,39 +113,53 @@ impl PyRawStream {
                 reason: format!("{} rows of values for {} times (stream '{stream}')", v.nrows(), t.len()),
             }));
         }
-        let raw = &mut self.raw;
+        let state = &self.state;
         py.detach(|| {
+            let raw = &mut lock(state)?.raw;
             for (i, ti) in t.iter().enumerate() {
-                raw.push_message(stream, *ti, &v.row(i).to_vec())?;
+                raw.push_message(stream, *ti, &v.row(i).to_vec()).map_err(lib_err)?;
             }
             Ok(())
         })
-        .map_err(lib_err)
     }
 
     /// No more messages of `stream` come.
-    fn end_stream(&mut self, stream: &str) -> PyResult<()> {
-        self.raw.end_stream(stream).map_err(lib_err)
+    fn end_stream(&self, stream: &str) -> PyResult<()> {
+        lock(&self.state)?.raw.end_stream(stream).map_err(lib_err)
     }
 
     /// Ends every stream and the drive: the last samples become ready and
     /// `report` is set. Raises `OdocalError` for the whole import's errors
     /// about the drive (streams that do not overlap, no part long enough).
-    fn finish(&mut self, py: Python<'_>) -> PyResult<()> {
-        let raw = &mut self.raw;
-        let report = py.detach(|| raw.finish().cloned()).map_err(lib_err)?;
-        self.report = Some(report);
-        Ok(())
+    fn finish(&self, py: Python<'_>) -> PyResult<()> {
+        let state = &self.state;
+        py.detach(|| {
+            let mut s = lock(state)?;
+            let report = s.raw.finish().cloned().map_err(lib_err)?;
+            s.report = Some(report);
+            Ok(())
+        })
     }
 
     /// Up to `max` ready samples of one part, oldest first, or None: a dict
     /// with `part`, `start` (the index of the first among the drive's
     /// samples), `starts_part`, `reference_measured` (bool array) and
     /// `samples`, a dict of arrays `t`, `px`, `py`, `psi`, `n_rl`, `n_rr`,
-    /// `a_y`, `beta`: the arguments of `Calibrator.push`.
+    /// `a_y`, `beta`: the arguments of `Calibrator.push`. `max` is an
+    /// integer of at least 1; another raises `OdocalError`.
     #[pyo3(signature = (max=400))]
-    fn take_chunk<'py>(&mut self, py: Python<'py>, max: usize) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let Some(c) = self.raw.take_chunk(max) else { return Ok(None) };
+    fn take_chunk<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = crate::convert::count)] max: usize,
+    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+        if max == 0 {
+            return Err(lib_err(odocal::Error::InvalidOption {
+                field: "max",
+                reason: "take_chunk(max) takes at least 1 sample, got 0".into(),
+            }));
+        }
+        let Some(c) = lock(&self.state)?.raw.take_chunk(max) else { return Ok(None) };
         let d = PyDict::new(py);
         d.set_item("part", c.part)?;
         d.set_item("start", c.start)?;
@@ -155,19 +188,21 @@ impl PyRawStream {
     /// report), else None.
     #[getter]
     fn clock_offset<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.raw.clock_offset().map(|c| to_py(py, &json(c)?)).transpose()
+        let offset = lock(&self.state)?.raw.clock_offset().map(json).transpose()?;
+        offset.map(|c| to_py(py, &c)).transpose()
     }
 
     /// The import report after `finish()` (a dict of the library's
     /// `ImportReport`), else None.
     #[getter]
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.report.as_ref().map(|r| to_py(py, &json(r)?)).transpose()
+        let report = lock(&self.state)?.report.as_ref().map(json).transpose()?;
+        report.map(|r| to_py(py, &r)).transpose()
     }
 
     /// Rows and samples the import holds now.
     #[getter]
-    fn held(&self) -> usize {
-        self.raw.held()
+    fn held(&self) -> PyResult<usize> {
+        Ok(lock(&self.state)?.raw.held())
     }
 }

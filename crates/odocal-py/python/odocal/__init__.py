@@ -17,6 +17,8 @@ the same JSON report.
 
 Numeric work runs with the GIL released, so other Python threads keep
 running; a ``progress`` callback is only ever called on the calling thread.
+An ``online.Calibrator`` or ``online.RawStream`` used from another thread
+while it pushes waits for the push to end.
 """
 
 from __future__ import annotations
@@ -340,13 +342,30 @@ class History(_History):
         return self._record_dict(rec)
 
 
+_PARAM_FILE_SUFFIXES = (".yaml", ".yml", ".json")
+
+
 def _theta_arg(theta: ThetaLike) -> Any:
+    """θ as the native module reads it; a path object that names no
+    parameter file, or an array that is not four numbers in one dimension,
+    raises :class:`OdocalError` saying what θ takes."""
     if isinstance(theta, CalibrationReport):
         return theta.theta
     if isinstance(theta, os.PathLike):
-        return os.fspath(theta)
+        path = os.fspath(theta)
+        if not str(path).lower().endswith(_PARAM_FILE_SUFFIXES):
+            raise OdocalError(
+                f"θ: {path} is not a parameter file: give the .yaml, .yml or .json file that "
+                "write_params (--params-out) writes, or θ as numbers"
+            )
+        return path
     if isinstance(theta, np.ndarray):
-        return [float(x) for x in theta]
+        if theta.ndim != 1:
+            raise OdocalError(
+                f"θ: got an array of shape {theta.shape}, where four numbers c_e, c_d, t_r, d "
+                "(a 1-D array) are expected"
+            )
+        return theta.tolist()
     return theta
 
 

@@ -53,8 +53,9 @@ class Drive:
         mismatch, time that does not increase, a non-uniform step, a part id
         that is a fraction or negative, ...), naming the argument, its shape
         and the 1-D array expected for one that is not 1-D (a 2-D array, a
-        single number), and naming an argument of more than 50,000,000
-        samples before any is converted."""
+        single number), naming an argument of more than 50,000,000
+        samples before any is converted, and naming a numpy masked array
+        with masked values (numpy would hand over the values under its mask)."""
     @staticmethod
     def from_csv(path: _Path) -> Drive:
         """Reads a canonical CSV; a simulator sidecar beside it gives the true θ."""
@@ -171,7 +172,8 @@ def _write_params(
 
 class RawStream:
     """The streamed import (``odocal.online.RawStream``): a manifest's streams pushed
-    message by message, canonical samples taken as they become ready."""
+    message by message, canonical samples taken as they become ready. A call from another
+    thread while a push runs (without the GIL) waits for it."""
 
     def __init__(self, manifest: _Path, *, warm_up_s: Optional[float] = None) -> None:
         """The streamed import of the manifest at ``manifest`` (its streams are pushed,
@@ -190,13 +192,14 @@ class RawStream:
     def push_messages(self, stream: str, t: _ArrayLike, values: _ArrayLike) -> None:
         """Several messages of ``stream``: times (n, 1-D) and values (n × columns, 2-D;
         converted to float64). Raises OdocalError naming the argument and its shape for
-        another shape."""
+        another shape, or naming an argument of more than 50,000,000 messages before any
+        is converted."""
     def end_stream(self, stream: str) -> None:
         """No more messages of ``stream`` come."""
     def finish(self) -> None:
         """Ends every stream and the drive: the last samples become ready, ``report`` is set."""
     def take_chunk(self, max: int = 400) -> Optional[dict[str, Any]]:
-        """Up to ``max`` ready samples of one part, or None: ``part``, ``start``,
+        """Up to ``max`` (at least 1) ready samples of one part, or None: ``part``, ``start``,
         ``starts_part``, ``reference_measured`` and ``samples`` (arrays ``t``, ``px``,
         ``py``, ``psi``, ``n_rl``, ``n_rr``, ``a_y``, ``beta``: ``Calibrator.push``'s arguments)."""
     @property
@@ -211,7 +214,8 @@ class RawStream:
 
 class Calibrator:
     """The online calibrator (``odocal.online.Calibrator``): a recursive
-    Gauss-Newton over the calibration segments of a stream of samples."""
+    Gauss-Newton over the calibration segments of a stream of samples. A call from
+    another thread while a push runs (without the GIL) waits for it."""
 
     def __init__(
         self,
@@ -244,7 +248,8 @@ class Calibrator:
         of more than 1.5 sample times, after which a new part starts. Raises OdocalError
         naming the argument and its shape for one that is not 1-D, and naming the column and
         the sample (its index in this push) for a value that is not finite or a time that
-        does not fit; a refused push takes no sample."""
+        does not fit, and naming an argument of more than 50,000,000 samples before any is
+        converted (push in chunks); a refused push takes no sample."""
     def push_drive(self, drive: Drive, chunk: int = 400) -> None:
         """A whole drive as a new drive, in chunks."""
     def new_drive(self) -> None:
