@@ -84,7 +84,7 @@ impl TrackHeading {
         // The samples behind the second one that the oldest chord still to
         // be figured (and every later one) ends at are not read again.
         let c = self.track.get(self.next).copied().unwrap_or(newest);
-        while self.track.len() > 2 && self.chord.ends_behind(&c, &self.track[1]) {
+        while self.next > 1 && self.track.len() > 2 && self.chord.ends_behind(&c, &self.track[1]) {
             self.track.pop_front();
             self.next -= 1;
         }

@@ -109,19 +109,33 @@ fn unsupported_manifests_are_refused_with_the_reason() {
 }
 
 /// The heading derived from the track (no `[pose.heading]`; the samples at
-/// the start wait until the vehicle moves): the whole import's bit for bit.
+/// the start wait until the vehicle moves): the whole import's bit for bit,
+/// with the default chord, one shorter than the steps and a long one.
 #[test]
 fn a_heading_derived_from_the_track_is_streamed_bit_for_bit() {
-    for rel in [
-        "../../examples/psu-mapping-van-testtrack/run-16-06-28.toml",
-        "../../examples/psu-mapping-van-testtrack/run-14-45-26.toml",
-        "tests/data/psu-mapping-van/manifest.toml",
-        "tests/data/comma2k19-rav4/manifest.toml",
+    for (rel, baseline) in [
+        ("../../examples/psu-mapping-van-testtrack/run-16-06-28.toml", None),
+        ("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", None),
+        ("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", Some(12.0)),
+        ("tests/data/psu-mapping-van/manifest.toml", None),
+        ("tests/data/psu-mapping-van/manifest.toml", Some(0.3)),
+        ("tests/data/psu-mapping-van/manifest.toml", Some(25.0)),
+        ("tests/data/comma2k19-rav4/manifest.toml", None),
+        ("tests/data/comma2k19-rav4/manifest.toml", Some(8.0)),
     ] {
-        let m = match variant(rel, |t| without(t, "[pose.heading]")) {
+        let m = variant(rel, |t| {
+            let t = without(t, "[pose.heading]");
+            match baseline {
+                Some(b) => t.replacen("[pose]\n", &format!("[pose]\nderive_heading_baseline_m = {b}\n"), 1),
+                None => t,
+            }
+        });
+        let m = match m {
             Ok(m) => m,
             Err(e) => panic!("{rel}: {e}"),
         };
+        let want = baseline.unwrap_or(crate::io::import::manifest::DEFAULT_DERIVE_HEADING_BASELINE_M);
+        assert_eq!(m.pose.derive_heading_baseline_m.to_bits(), want.to_bits(), "{rel}");
         assert!(m.pose.heading.is_none() && not_streamable(&m).is_none(), "{rel}");
         let whole = crate::io::import::import_drive(&m).expect("import");
         let (d, r) = streamed(&m, StreamOptions::default(), 400);
