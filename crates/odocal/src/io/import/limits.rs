@@ -57,6 +57,8 @@ pub(crate) const MIN_NOMINAL_OVER_MEAN_RATE: f64 = 0.5;
 pub(crate) const MAX_TIME_OFFSET_S: f64 = 1e10;
 /// Longest smoothing window of a derived a_y or of the road's roll, s.
 pub(crate) const MAX_SMOOTHING_S: f64 = 60.0;
+/// Longest `pose.derive_heading_baseline_m`, m.
+pub(crate) const MAX_DERIVE_HEADING_BASELINE_M: f64 = 50.0;
 /// Longest de-jitter window, s.
 pub(crate) const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
 /// Most samples each side of the de-jitter window.

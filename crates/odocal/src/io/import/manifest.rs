@@ -467,10 +467,26 @@ pub(crate) struct PoseSpec {
     /// Below this speed the derived heading is held, m/s. Default 1.
     #[serde(default = "one")]
     pub(crate) derive_heading_min_speed_m_per_s: f64,
+    /// The derived heading is the direction of the chord from half this
+    /// distance of travel behind each pose sample to as far ahead, m.
+    /// Default [`DEFAULT_DERIVE_HEADING_BASELINE_M`].
+    #[serde(default = "default_derive_heading_baseline_m")]
+    pub(crate) derive_heading_baseline_m: f64,
     /// Quality column and its accepted values; samples with other values
     /// split the drive.
     #[serde(default)]
     pub(crate) quality: Option<QualitySpec>,
+}
+
+/// The default `pose.derive_heading_baseline_m`, m: a chord of 2 m keeps
+/// the derived heading of the shipped drives (10–20 Hz poses at 5–30 m/s,
+/// steps of 0.5–3 m) that of consecutive steps or closer to their heading
+/// column, and holds 1–3 cm of position noise to about a degree at
+/// walking speeds.
+pub(crate) const DEFAULT_DERIVE_HEADING_BASELINE_M: f64 = 2.0;
+
+fn default_derive_heading_baseline_m() -> f64 {
+    DEFAULT_DERIVE_HEADING_BASELINE_M
 }
 
 /// Position columns (`[pose.position]`, tagged by `kind`).

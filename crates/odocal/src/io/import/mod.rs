@@ -142,6 +142,7 @@
 //! [pose]
 //! stream = "gnss"
 //! derive_heading_min_speed_m_per_s = 1.0  # only used without [pose.heading]
+//! derive_heading_baseline_m = 2.0         # chord of travel the derived heading is the direction of
 //!
 //! [pose.position]
 //! kind = "lat_lon"            # or kind = "local" with x = "...", y = "..."
@@ -559,18 +560,10 @@ impl OnGrid {
         .map_err(|e| match e {
             Error::InvalidSample { context, column, sample, reason } => {
                 let t = t_of.get(sample).copied().unwrap_or(f64::NAN);
-                // Without [pose.heading] the heading is the direction between
-                // consecutive positions, not a column that could be in degrees.
+                // Without [pose.heading] the heading is the direction of a
+                // chord of the track, not a column that could be in degrees.
                 let reason = if column == "psi" && m.pose.heading.is_none() {
-                    format!(
-                        "the heading derived from the positions (the manifest has no [pose.heading]) turns too \
-                         fast: {}; the direction between consecutive positions is their noise where they are \
-                         close together: give the pose's heading ([pose.heading]), or raise \
-                         pose.derive_heading_min_speed_m_per_s (here {} m/s) to hold the heading through slower \
-                         stretches",
-                        reason.split(':').next().unwrap_or(&reason),
-                        m.pose.derive_heading_min_speed_m_per_s
-                    )
+                    derived_heading_turns_too_fast(m, &reason)
                 } else {
                     reason
                 };
@@ -579,6 +572,26 @@ impl OnGrid {
             e => e,
         })
     }
+}
+
+/// Why a heading derived from the positions turns too fast, with the
+/// settings that help: the heading column, a longer chord (while below its
+/// limit), a higher speed below which the heading is held.
+fn derived_heading_turns_too_fast(m: &Manifest, reason: &str) -> String {
+    let p = &m.pose;
+    let longer = if p.derive_heading_baseline_m < limits::MAX_DERIVE_HEADING_BASELINE_M {
+        format!(", lengthen pose.derive_heading_baseline_m (here {} m)", p.derive_heading_baseline_m)
+    } else {
+        String::new()
+    };
+    format!(
+        "the heading derived from the positions (the manifest has no [pose.heading]) turns too fast: {}; it is \
+         the direction of a chord of pose.derive_heading_baseline_m of travel, which the positions' noise turns \
+         where it is not small against the chord: give the pose's heading ([pose.heading]){longer}, or raise \
+         pose.derive_heading_min_speed_m_per_s (here {} m/s) to hold the heading through slower stretches",
+        reason.split(':').next().unwrap_or(reason),
+        p.derive_heading_min_speed_m_per_s
+    )
 }
 
 /// The columns each stream must provide, with the manifest keys asking.

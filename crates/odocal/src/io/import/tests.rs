@@ -424,29 +424,70 @@ fn a_heading_in_the_wrong_unit_is_warned_at_import() {
     assert!(refused(&w) && w.iter().any(|w| w.contains("the heading differs from the direction of travel")), "{w:?}");
 }
 
-/// A heading derived from positions whose steps are their noise (2 m/s at
-/// 40 Hz, ±10 cm of zig-zag across the track) is named as derived, with
-/// the settings that help, not as a heading column in degrees.
-#[test]
-fn a_derived_heading_that_turns_too_fast_is_named_as_derived() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let path = small_case(dir.path());
+/// [`small_case`]'s manifest over a walk along x at 2 m/s for 60 s: wheels
+/// at 100 Hz, positions at 20 Hz with 2 cm of white noise on each axis, no
+/// heading column; `pose` holds extra `[pose]` keys. Output at 40 Hz.
+fn noisy_walk(dir: &Path, pose: &str) -> PathBuf {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let noise = rand_distr::Normal::new(0.0, 0.02).expect("normal");
+    let mut sample = || rand_distr::Distribution::sample(&noise, &mut rng);
     let (mut w, mut p) = (String::from("t,left,right\n"), String::from("t,x,y,q\n"));
-    for i in 0..1000 {
+    for i in 0..6000 {
         writeln!(w, "{},1,1", i as f64 / 100.0).expect("write");
     }
-    for i in 0..400 {
-        let across = if i % 2 == 0 { 0.1 } else { -0.1 };
-        writeln!(p, "{},{},{across},1", i as f64 / 40.0, i as f64 * 0.05).expect("write");
+    for i in 0..1200 {
+        let t = i as f64 / 20.0;
+        writeln!(p, "{t},{},{},1", 2.0 * t + sample(), sample()).expect("write");
     }
-    std::fs::write(dir.path().join("w.csv"), w).expect("write");
-    std::fs::write(dir.path().join("p.csv"), p).expect("write");
+    std::fs::write(dir.join("w.csv"), w).expect("write");
+    std::fs::write(dir.join("p.csv"), p).expect("write");
+    let path = small_case_manifest(dir);
     let text = std::fs::read_to_string(&path).expect("read");
-    std::fs::write(&path, text.replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 40.0")).expect("write");
-    let e = load_drive(&path).expect_err("a heading of noise").to_string();
+    let text = text
+        .replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 40.0")
+        .replace("[pose]\nstream = \"pose\"\n", &format!("[pose]\nstream = \"pose\"\n{pose}\n"));
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+/// The noisy walk of [`noisy_walk`] imports with the derived heading's
+/// default chord (2 m): its error is about 0.01 rad RMS. A chord shorter
+/// than the steps (5 cm: the direction between consecutive samples) is
+/// the noise, and the drive's check refuses it, naming the heading as
+/// derived from the positions with the settings that help, not as a
+/// heading column in degrees.
+#[test]
+fn a_noisy_track_gives_a_derived_heading_that_passes_the_check() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (d, _) = load_drive(&noisy_walk(dir.path(), "")).expect("the default chord");
+    let psi = &d.measured().psi;
+    let rms = (psi.iter().map(|p| p * p).sum::<f64>() / psi.len() as f64).sqrt();
+    assert!(rms < 0.02, "heading error RMS {rms} rad");
+    let short = noisy_walk(dir.path(), "derive_heading_baseline_m = 0.05");
+    let e = load_drive(&short).expect_err("a heading of noise").to_string();
     assert!(e.contains("psi at t = ") && e.contains("the heading derived from the positions"), "{e}");
     assert!(e.contains("[pose.heading]") && e.contains("derive_heading_min_speed_m_per_s (here 1 m/s)"), "{e}");
+    assert!(e.contains("lengthen pose.derive_heading_baseline_m (here 0.05 m)"), "{e}");
     assert!(!e.contains("degrees"), "{e}");
+}
+
+/// `pose.derive_heading_baseline_m` must be a positive length up to the
+/// limit; the error names the key.
+#[test]
+fn a_derived_heading_baseline_out_of_range_is_refused_with_the_key() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (value, says) in [
+        ("0", "must be a positive number"),
+        ("-1.5", "must be a positive number"),
+        ("nan", "must be a positive number"),
+        ("inf", "must be a positive number"),
+        ("500.0", "above the limit of 50"),
+        ("\"2\"", "invalid type"),
+    ] {
+        let e =
+            error_of(dir.path(), |t| t.replace("[pose]\n", &format!("[pose]\nderive_heading_baseline_m = {value}\n")));
+        assert!(e.contains("pose.derive_heading_baseline_m") && e.contains(says), "{value}: {e}");
+    }
 }
 
 /// A fixed clock offset's estimate, only reported, is skipped with a note

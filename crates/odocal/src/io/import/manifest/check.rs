@@ -194,14 +194,22 @@ impl Manifest {
             .collect()
     }
 
-    /// `[pose]`: an existing stream, a non-negative speed for derived
-    /// headings, a latitude/longitude origin in range, a quality filter that
-    /// accepts something and has finite thresholds.
+    /// `[pose]`: an existing stream, a non-negative speed and a baseline in
+    /// range for derived headings, a latitude/longitude origin in range, a
+    /// quality filter that accepts something and has finite thresholds.
     fn check_pose(&self) -> Result<()> {
         self.require_stream("pose.stream", &self.pose.stream)?;
         if !non_negative(self.pose.derive_heading_min_speed_m_per_s) {
             return Err(self.error("pose.derive_heading_min_speed_m_per_s", "must be >= 0"));
         }
+        self.require_positive("pose.derive_heading_baseline_m", self.pose.derive_heading_baseline_m)?;
+        self.require_at_most(
+            "pose.derive_heading_baseline_m",
+            self.pose.derive_heading_baseline_m,
+            limits::MAX_DERIVE_HEADING_BASELINE_M,
+            "the derived heading is the mean direction over this much travel, and a curve much shorter than \
+             it is smoothed away",
+        )?;
         if let PositionSpec::LatLon { origin: Some(o), .. } = &self.pose.position {
             if !(o[0].abs() <= 90.0 && o[1].abs() <= 360.0 && o[2].is_finite()) {
                 return Err(self.error("pose.position.origin", "expected [lat_deg, lon_deg, h_m]"));

@@ -29,9 +29,11 @@
 //!   input by the larger half-width of the two plus 0.25 s (0.75 s on the
 //!   shipped van manifests);
 //! - a **heading derived from the track** (no `[pose.heading]`) is the
-//!   whole import's direction of motion between accepted pose samples,
-//!   unwrapped and averaged onto them: each sample's heading waits for the
-//!   next sample, and the samples at the start wait until the vehicle
+//!   whole import's direction of a chord of `derive_heading_baseline_m` of
+//!   travel centred on each accepted pose sample, unwrapped: each sample's
+//!   heading waits until the track has gone half the baseline further (or
+//!   at most the baseline over the minimum speed of pose time, module
+//!   `heading`), and the samples at the start wait until the vehicle
 //!   first moves faster than `derive_heading_min_speed_m_per_s` (their
 //!   heading is back-filled from that direction) — for at most
 //!   `warm_up_s` of pose time: a longer standstill before

@@ -109,19 +109,33 @@ fn unsupported_manifests_are_refused_with_the_reason() {
 }
 
 /// The heading derived from the track (no `[pose.heading]`; the samples at
-/// the start wait until the vehicle moves): the whole import's bit for bit.
+/// the start wait until the vehicle moves): the whole import's bit for bit,
+/// with the default chord, one shorter than the steps and a long one.
 #[test]
 fn a_heading_derived_from_the_track_is_streamed_bit_for_bit() {
-    for rel in [
-        "../../examples/psu-mapping-van-testtrack/run-16-06-28.toml",
-        "../../examples/psu-mapping-van-testtrack/run-14-45-26.toml",
-        "tests/data/psu-mapping-van/manifest.toml",
-        "tests/data/comma2k19-rav4/manifest.toml",
+    for (rel, baseline) in [
+        ("../../examples/psu-mapping-van-testtrack/run-16-06-28.toml", None),
+        ("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", None),
+        ("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", Some(12.0)),
+        ("tests/data/psu-mapping-van/manifest.toml", None),
+        ("tests/data/psu-mapping-van/manifest.toml", Some(0.3)),
+        ("tests/data/psu-mapping-van/manifest.toml", Some(25.0)),
+        ("tests/data/comma2k19-rav4/manifest.toml", None),
+        ("tests/data/comma2k19-rav4/manifest.toml", Some(8.0)),
     ] {
-        let m = match variant(rel, |t| without(t, "[pose.heading]")) {
+        let m = variant(rel, |t| {
+            let t = without(t, "[pose.heading]");
+            match baseline {
+                Some(b) => t.replacen("[pose]\n", &format!("[pose]\nderive_heading_baseline_m = {b}\n"), 1),
+                None => t,
+            }
+        });
+        let m = match m {
             Ok(m) => m,
             Err(e) => panic!("{rel}: {e}"),
         };
+        let want = baseline.unwrap_or(crate::io::import::manifest::DEFAULT_DERIVE_HEADING_BASELINE_M);
+        assert_eq!(m.pose.derive_heading_baseline_m.to_bits(), want.to_bits(), "{rel}");
         assert!(m.pose.heading.is_none() && not_streamable(&m).is_none(), "{rel}");
         let whole = crate::io::import::import_drive(&m).expect("import");
         let (d, r) = streamed(&m, StreamOptions::default(), 400);
@@ -427,7 +441,9 @@ fn a_long_standstill_before_the_first_motion_is_held_for_at_most_the_warm_up() {
         let d = &whole.drive;
         let first = d.t().partition_point(|&t| t < taken[0].0);
         assert_eq!(d.len() - first, taken.len(), "standstill {still_s} s: the samples after the hold");
-        assert!(taken[0].0 > still_s - 20.0 - 1.0 && taken[0].0 < still_s - 20.0 + 1.0, "{}", taken[0].0);
+        // The hold before the first motion is decided: that is half the
+        // derived heading's baseline (1 m) of travel in, 1.1 s.
+        assert!(taken[0].0 > still_s - 20.0 && taken[0].0 < still_s - 20.0 + 2.0, "{}", taken[0].0);
         for (k, (t, sig)) in taken.iter().enumerate() {
             let w = d.measured();
             let want = [w.px[first + k], w.py[first + k], w.psi[first + k], w.n_rl[first + k], w.n_rr[first + k]];

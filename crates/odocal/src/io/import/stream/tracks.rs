@@ -240,10 +240,13 @@ impl PoseBuilder {
             rejected: 0,
             rejected_values: Vec::new(),
             last_good: None,
-            derived: p
-                .heading
-                .is_none()
-                .then(|| super::heading::TrackHeading::new(p.derive_heading_min_speed_m_per_s, max_hold_s)),
+            derived: p.heading.is_none().then(|| {
+                super::heading::TrackHeading::new(
+                    p.derive_heading_min_speed_m_per_s,
+                    p.derive_heading_baseline_m,
+                    max_hold_s,
+                )
+            }),
             max_hold_s,
         }
     }
