@@ -133,11 +133,24 @@ impl ParamRow {
     /// mrad) with the σ that stands for them
     /// (the cluster-robust σ when it was computed, else the model σ),
     /// labelled `± 1σ (robust)` or `± 1σ (model)` as the text labels it;
-    /// held entries have no σ.
+    /// held entries have no σ. After a joint calibration with a heading
+    /// offset per drive, the row `heading_offset` is their mean and a row
+    /// `heading_offset, drive k` follows for each, as the text lists them.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
         let sd = x.robust.as_ref().map_or(x.std_dev, |r| r.std_dev);
         let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(sd));
         let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
+        let per_drive = x.heading_offsets_per_drive().into_iter().enumerate().map(|(k, (value, sigma))| ParamRow {
+            name: format!("heading_offset, drive {}", k + 1),
+            unit: "mrad".into(),
+            scale: 1e3,
+            initial: init[2],
+            calibrated: value,
+            sigma: Some(sigma),
+            truth: None,
+            sigma_label: Some(label.to_string()),
+            not_observable: false,
+        });
         [odocal::Param::LeverX, odocal::Param::LeverY, odocal::Param::HeadingOffset]
             .into_iter()
             .enumerate()
@@ -155,6 +168,7 @@ impl ParamRow {
                     not_observable: false,
                 }
             })
+            .chain(per_drive)
             .collect()
     }
 }
