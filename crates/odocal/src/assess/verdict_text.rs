@@ -36,28 +36,7 @@ impl std::fmt::Display for VerdictReason {
                 (fit - held_out).abs() / sigma,
                 u = unit(*param)
             ),
-            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, released }
-                if !released.is_empty() =>
-            {
-                let names: Vec<&str> = released.iter().map(|s| s.name()).collect();
-                write!(
-                    f,
-                    "{param} = {fallback:.6} {u} is the batch Gauss-Newton fallback: with the noise level(s) held \
-                     ({}) EIV's checks failed, with them estimated they pass and EIV's estimate lies {gap:.2e} {u} \
-                     away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): the drive contradicts the held \
-                     level(s), and batch G-N's errors-in-variables bias may be as large (the σ for the next drive \
-                     includes it)",
-                    names.join(", "),
-                    u = unit(*param)
-                )
-            }
-            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, .. } => write!(
-                f,
-                "{param} = {fallback:.6} {u} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} {u} \
-                 away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): batch G-N's errors-in-variables bias \
-                 may be as large (the σ for the next drive includes it)",
-                u = unit(*param)
-            ),
+            VerdictReason::FallbackDisagrees { .. } => fallback_text(self, f),
             VerdictReason::FallbackUnchecked { clamped, held, .. } => {
                 let names = |v: &[NoiseSource]| v.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ");
                 f.write_str("the result is the batch Gauss-Newton fallback, and EIV's own estimate fails the plausibility guards")?;
@@ -139,6 +118,33 @@ impl std::fmt::Display for VerdictReason {
                  {param} by {step_sigmas:.2} σ (raise --max-iterations)"
             ),
         }
+    }
+}
+
+/// [`VerdictReason::FallbackDisagrees`]'s text.
+fn fallback_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    match r {
+        VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, released } if !released.is_empty() => {
+            let names: Vec<&str> = released.iter().map(|s| s.name()).collect();
+            write!(
+                f,
+                "{param} = {fallback:.6} {u} is the batch Gauss-Newton fallback: with the noise level(s) held \
+                 ({}) EIV's checks failed, with them estimated they pass and EIV's estimate lies {gap:.2e} {u} \
+                 away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): the drive contradicts the held \
+                 level(s), and batch G-N's errors-in-variables bias may be as large (the σ for the next drive \
+                 includes it)",
+                names.join(", "),
+                u = unit(*param)
+            )
+        }
+        VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, .. } => write!(
+            f,
+            "{param} = {fallback:.6} {u} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} {u} \
+             away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): batch G-N's errors-in-variables bias \
+             may be as large (the σ for the next drive includes it)",
+            u = unit(*param)
+        ),
+        _ => Ok(()),
     }
 }
 

@@ -191,14 +191,6 @@ impl ExtrinsicsEstimate {
         }
     }
 
-    /// A joint calibration's heading offset of each drive, in drive order,
-    /// each with the 1σ that stands for it (cluster-robust when computed,
-    /// else the model σ), rad; empty for one drive or the heading offset
-    /// held. `value.heading_offset` is their mean.
-    pub fn heading_offsets_per_drive(&self) -> Vec<(f64, f64)> {
-        self.per_drive.iter().map(|d| (d.value, d.result_std_dev())).collect()
-    }
-
     /// The 1σ that stands for the estimate: the cluster-robust σ when it
     /// was computed (as for θ's result σ), else the model σ; 0 for held entries.
     pub(crate) fn result_std_dev(&self) -> Extrinsics {
