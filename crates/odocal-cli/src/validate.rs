@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use crate::output::is_stdout;
 use anyhow::Result;
 use clap::Args;
-use odocal::{Theta, ValidateOptions};
+use odocal::{Param, Theta, ValidateOptions};
 
 use crate::args::ThetaArg;
 use crate::io::{drive_entry, load_drive_with_scale, write_json};
@@ -317,19 +317,26 @@ fn verdict_line(theta: &Theta, report: &odocal::ValidateReport) -> Option<String
         f.ratio,
         f.mean_position_error_m,
         f.method,
-        change(theta, &f.theta)
+        change(theta, f)
     ))
 }
 
-/// How θ fitted on the drive differs from the given θ, per parameter.
-fn change(theta: &Theta, fit: &Theta) -> String {
-    format!(
-        "fitted c_e {:+.3} %, c_d {:+.2} mm, t_r {:+.2} %, d {:+.2} mm/(m/s²)",
-        (fit.c_e / theta.c_e - 1.0) * 100.0,
-        (fit.c_d - theta.c_d) * 1e3,
-        (fit.t_r / theta.t_r - 1.0) * 100.0,
-        (fit.d - theta.d) * 1e3
-    )
+/// How θ fitted on the drive differs from the given θ, per parameter;
+/// `held` for one the fit held at its start, which the drive does not
+/// determine.
+fn change(theta: &Theta, fit: &odocal::DriveFit) -> String {
+    let f = &fit.theta;
+    let each = [
+        (Param::CE, format!("{:+.3} %", (f.c_e / theta.c_e - 1.0) * 100.0)),
+        (Param::CD, format!("{:+.2} mm", (f.c_d - theta.c_d) * 1e3)),
+        (Param::TR, format!("{:+.2} %", (f.t_r / theta.t_r - 1.0) * 100.0)),
+        (Param::D, format!("{:+.2} mm/(m/s²)", (f.d - theta.d) * 1e3)),
+    ];
+    let parts: Vec<String> = each
+        .iter()
+        .map(|(p, v)| if fit.held.contains(*p) { format!("{p} held") } else { format!("{p} {v}") })
+        .collect();
+    format!("fitted {}", parts.join(", "))
 }
 
 /// A warning when θ's parameter file was calibrated on drives that count

@@ -133,11 +133,24 @@ impl ParamRow {
     /// mrad) with the σ that stands for them
     /// (the cluster-robust σ when it was computed, else the model σ),
     /// labelled `± 1σ (robust)` or `± 1σ (model)` as the text labels it;
-    /// held entries have no σ.
+    /// held entries have no σ. After a joint calibration with a heading
+    /// offset per drive, the row `heading_offset` is their mean and a row
+    /// `heading_offset, drive k` follows for each, as the text lists them.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
         let sd = x.robust.as_ref().map_or(x.std_dev, |r| r.std_dev);
         let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(sd));
         let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
+        let per_drive = heading_offsets_per_drive(x).into_iter().enumerate().map(|(k, (value, sigma))| ParamRow {
+            name: format!("heading_offset, drive {}", k + 1),
+            unit: "mrad".into(),
+            scale: 1e3,
+            initial: init[2],
+            calibrated: value,
+            sigma: Some(sigma),
+            truth: None,
+            sigma_label: Some(label.to_string()),
+            not_observable: false,
+        });
         [odocal::Param::LeverX, odocal::Param::LeverY, odocal::Param::HeadingOffset]
             .into_iter()
             .enumerate()
@@ -155,8 +168,25 @@ impl ParamRow {
                     not_observable: false,
                 }
             })
+            .chain(per_drive)
             .collect()
     }
+}
+
+/// A joint calibration's heading offset of each drive, in drive order, with
+/// the 1σ that stands for it (cluster-robust when computed, else the model
+/// σ), rad, read from the estimate's JSON `per_drive`; empty for one drive
+/// or the heading offset held.
+fn heading_offsets_per_drive(x: &odocal::ExtrinsicsEstimate) -> Vec<(f64, f64)> {
+    let json = serde_json::to_value(x).unwrap_or_default();
+    let Some(drives) = json["per_drive"].as_array() else { return Vec::new() };
+    drives
+        .iter()
+        .filter_map(|d| {
+            let sigma = d["robust_std_dev"].as_f64().or(d["std_dev"].as_f64())?;
+            Some((d["value"].as_f64()?, sigma))
+        })
+        .collect()
 }
 
 /// Everything the HTML report shows. Build with [`ReportInput::new`] and

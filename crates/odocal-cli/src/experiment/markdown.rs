@@ -37,7 +37,7 @@ fn header(o: &mut String, e: &Experiment, out: &Outputs) {
         md_text(&out.drive.source),
         out.drive.samples,
         out.drive.distance_km,
-        out.drive.sample_time_s,
+        seconds(out.drive.sample_time_s),
         out.drive.wheel_rotation_rel_error_rms.map(|w| format!(", wheel error {:.2} % rms", w * 100.0)).unwrap_or_default(),
         e.segments.cut,
         e.segments.selected,
@@ -49,6 +49,13 @@ fn header(o: &mut String, e: &Experiment, out: &Outputs) {
         "Ē_p is the mean dead-reckoning position error on the validation segments with the *measured* inputs (docs/method.md §7). \
          Δ columns are θ − θ_true in mm (c_d, d: mm and mm/(m/s²)); Ē_p,min is the reachable minimum.\n"
     );
+}
+
+/// A sample time in seconds as a short number: `0.025`, not the
+/// `0.025000000000000005` a drive's stamps average to.
+fn seconds(t: f64) -> String {
+    let s = format!("{t:.9}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// Appends a table heading and [`TABLE_HEAD`] without the blank line after it.
@@ -334,6 +341,13 @@ mod tests {
 
     fn scored(err: Option<Theta>, ratio: Option<Theta>) -> Scored {
         Scored { theta: Theta::PAPER_INITIAL, mean_position_error_m: 1.0, error_vs_true: err, error_over_crb: ratio }
+    }
+
+    #[test]
+    fn a_sample_time_is_a_short_number() {
+        assert_eq!(seconds(0.025000000000000005), "0.025");
+        assert_eq!(seconds(0.01), "0.01");
+        assert_eq!(seconds(1.0), "1");
     }
 
     #[test]

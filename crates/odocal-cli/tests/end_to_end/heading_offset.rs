@@ -172,7 +172,9 @@ fn a_joint_calibration_fits_each_drive_s_heading_offset() {
     let params = d.path().join("p.yaml");
     let p = params.to_str().expect("utf8");
     let args = ["calibrate", &a, &b, "--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30"];
-    let o = odocal(&[args.as_slice(), &["--json", "-", "--params-out", p]].concat());
+    let html = d.path().join("r.html");
+    let h = html.to_str().expect("utf8");
+    let o = odocal(&[args.as_slice(), &["--json", "-", "--params-out", p, "--report", h]].concat());
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     let per = v["heading_offset_per_drive"].as_array().expect("heading_offset_per_drive");
@@ -192,6 +194,14 @@ fn a_joint_calibration_fits_each_drive_s_heading_offset() {
     assert!(yaml.contains("heading_offset_per_drive: \"drive 1: 1.88"), "{yaml}");
     let text = stdout(&odocal(&args));
     assert!(text.contains("heading offset per drive") && text.contains("drive 2: δ = 14.2000 mrad"), "{text}");
+    // The HTML report lists them too, under their mean.
+    let page = std::fs::read_to_string(&html).expect("html");
+    for (k, want) in [(1, "18.800000"), (2, "14.200000")] {
+        let row = between(&page, &format!("<tr><td>heading_offset, drive {k}</td>"), "</tr>");
+        assert!(row.contains(&format!("<b>{want}</b>")), "drive {k}: {row}");
+    }
+    let mean = between(&page, "<tr><td>heading_offset</td>", "</tr>");
+    assert!(mean.contains("<b>16.500000</b>"), "{mean}");
 }
 
 /// The compensated wheel rotations (`n_rl_comp`, then `n_rr_comp`) of

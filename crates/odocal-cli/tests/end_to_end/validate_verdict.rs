@@ -132,6 +132,10 @@ fn a_drive_that_hardly_turns_is_judged_and_so_is_one_batch_gn_fails_on() {
     assert_eq!(fit["method"].as_str(), Some("eiv"), "{fit}");
     assert!(fit["ratio"].as_f64().expect("ratio") > 2.0, "{fit}");
     assert!(text.contains("(from 0: neither θ nor the drive states one; --carry-heading-offset holds 0)"), "{text}");
+    // The fit held t_r and d at θ_0: the text names them held, not as
+    // changes the drive shows.
+    assert_eq!(fit["held"], serde_json::json!(["t_r", "d"]), "{fit}");
+    assert!(text.contains("t_r held, d held"), "{text}");
     // The RAV4's own calibration fits it.
     let d = tempfile::tempdir().expect("tmp");
     let own = d.path().join("rav4.yaml");

@@ -1431,7 +1431,7 @@ mod tests {
             v.reasons.iter().filter(|r| matches!(r, VerdictReason::InconsistentSplit { .. })).collect();
         assert_eq!(inconsistent.len(), 1, "{v:?}");
         assert!(matches!(inconsistent[0], VerdictReason::InconsistentSplit { param: Param::TR, .. }));
-        assert!(inconsistent[0].to_string().contains("t_r = 1.815000 here but 1.209000"), "{}", inconsistent[0]);
+        assert!(inconsistent[0].to_string().contains("t_r = 1.815000 m here but 1.209000 m"), "{}", inconsistent[0]);
         // Within their σ: no reason. Far in σ but a negligible difference: no reason.
         let near = Theta { t_r: 1.815 + 0.03, ..th };
         let v = judge(&Evidence { split: Some((near, cov)), fit_m: Some(2.0), ..evidence(&th, &cov) }, &opts);

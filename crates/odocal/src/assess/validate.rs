@@ -14,6 +14,7 @@ use crate::drive::Drive;
 use crate::error::Result;
 use crate::io::param_file::ParamFile;
 use crate::model::extrinsics::Extrinsics;
+use crate::model::param::ParamSet;
 use crate::model::Theta;
 use crate::progress::ProgressFn;
 
@@ -198,6 +199,17 @@ pub struct DriveFit {
     pub ratio: f64,
     /// The verdict: the given θ fits the drive.
     pub fits: bool,
+    /// The parameters of θ the fit held at its start, θ or the paper's
+    /// θ_0, because the drive does not determine them: their values in
+    /// [`DriveFit::theta`] are that start's, not fitted. Empty when every
+    /// parameter was fitted.
+    #[serde(default, skip_serializing_if = "no_params")]
+    pub held: ParamSet,
+}
+
+/// `skip_serializing_if` for an empty [`ParamSet`].
+fn no_params(set: &ParamSet) -> bool {
+    set.is_empty()
 }
 
 impl DriveFit {
@@ -220,6 +232,7 @@ impl DriveFit {
             mean_position_error_m: own_m,
             ratio: given_m / own_m,
             fits,
+            held: ParamSet::default(),
         }
     }
 }

@@ -3,6 +3,17 @@
 
 use super::trust::VerdictReason;
 use crate::eiv::NoiseSource;
+use crate::model::param::Param;
+
+/// The SI unit of a parameter's values in the reasons (the parameter
+/// file's units; the text report's table shows c_d and d in mm).
+fn unit(p: Param) -> &'static str {
+    match p {
+        Param::D => "m/(m/s²)",
+        Param::HeadingOffset => "rad",
+        Param::CE | Param::CD | Param::TR | Param::LeverX | Param::LeverY => "m",
+    }
+}
 
 impl std::fmt::Display for VerdictReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -13,36 +24,19 @@ impl std::fmt::Display for VerdictReason {
             }
             VerdictReason::Unobservable { params } => write!(f, "{params} not observable from these data"),
             VerdictReason::AtGuardBound { param, value, fraction } => {
-                write!(f, "{param} = {value:.6} is at {:.0} % of its plausible half-width from θ_0", fraction * 100.0)
+                write!(f, "{param} = {value:.6} {} is at {:.0} % of its plausible half-width from θ_0", unit(*param), fraction * 100.0)
             }
             VerdictReason::LargeUncertainty { param, sigma, fraction } => {
-                write!(f, "{param} has a σ of {sigma:.3e} ({:.0} % of its plausible half-width)", fraction * 100.0)
+                write!(f, "{param} has a σ of {sigma:.3e} {} ({:.0} % of its plausible half-width)", unit(*param), fraction * 100.0)
             }
             VerdictReason::InconsistentSplit { param, fit, held_out, sigma } => write!(
                 f,
-                "{param} = {fit:.6} here but {held_out:.6} fitted on the held-out data alone: {:.0} σ apart \
-                 (σ {sigma:.2e}); the data do not agree on {param}",
-                (fit - held_out).abs() / sigma
+                "{param} = {fit:.6} {u} here but {held_out:.6} {u} fitted on the held-out data alone: {:.0} σ apart \
+                 (σ {sigma:.2e} {u}); the data do not agree on {param}",
+                (fit - held_out).abs() / sigma,
+                u = unit(*param)
             ),
-            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, released }
-                if !released.is_empty() =>
-            {
-                let names: Vec<&str> = released.iter().map(|s| s.name()).collect();
-                write!(
-                    f,
-                    "{param} = {fallback:.6} is the batch Gauss-Newton fallback: with the noise level(s) held \
-                     ({}) EIV's checks failed, with them estimated they pass and EIV's estimate lies {gap:.2e} away, \
-                     {sigmas:.1} × the σ without that gap ({sigma:.2e}): the drive contradicts the held level(s), and \
-                     batch G-N's errors-in-variables bias may be as large (the σ for the next drive includes it)",
-                    names.join(", ")
-                )
-            }
-            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, .. } => write!(
-                f,
-                "{param} = {fallback:.6} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} away, \
-                 {sigmas:.1} × the σ without that gap ({sigma:.2e}): batch G-N's errors-in-variables bias may be as \
-                 large (the σ for the next drive includes it)"
-            ),
+            VerdictReason::FallbackDisagrees { .. } => fallback_text(self, f),
             VerdictReason::FallbackUnchecked { clamped, held, .. } => {
                 let names = |v: &[NoiseSource]| v.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ");
                 f.write_str("the result is the batch Gauss-Newton fallback, and EIV's own estimate fails the plausibility guards")?;
@@ -63,23 +57,25 @@ impl std::fmt::Display for VerdictReason {
             }
             VerdictReason::RefitDisagrees { param, estimate, gap, sigma, sigmas } => write!(
                 f,
-                "{param} = {estimate:.6} is EIV's refit (its first fit failed its checks); the batch Gauss-Newton \
-                 start lies {gap:.2e} away, {sigmas:.1} × the σ without that gap ({sigma:.2e}): the estimators \
-                 disagree (the σ for the next drive includes the gap)"
+                "{param} = {estimate:.6} {u} is EIV's refit (its first fit failed its checks); the batch Gauss-Newton \
+                 start lies {gap:.2e} {u} away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): the \
+                 estimators disagree (the σ for the next drive includes the gap)",
+                u = unit(*param)
             ),
             VerdictReason::TrackWidthAboveStart { estimate, start, sigma, sigmas } => write!(
                 f,
-                "t_r = {estimate:.6} is EIV's estimate, {sigmas:.1} × the σ without that excess ({sigma:.2e}) above \
-                 its batch Gauss-Newton start's {start:.6}: batch G-N's errors-in-variables bias on t_r points up, \
+                "t_r = {estimate:.6} m is EIV's estimate, {sigmas:.1} × the σ without that excess ({sigma:.2e} m) \
+                 above its batch Gauss-Newton start's {start:.6} m: batch G-N's errors-in-variables bias on t_r points up, \
                  so the filter's model does not explain this shift (the σ for the next drive includes it)"
             ),
             VerdictReason::HeadingDriftFloorDisagrees { param, estimate, gap, sigma, sigmas } => write!(
                 f,
-                "{param} = {estimate:.6}: EIV's fit holds the reference's heading drift at its floor \
-                 (a centimetre-grade position), and without the floor {param} moves by {gap:.3e}, {sigmas:.1} × \
-                 the σ without that gap ({sigma:.2e}); the data do not settle the heading drift's level (the σ for \
+                "{param} = {estimate:.6} {u}: EIV's fit holds the reference's heading drift at its floor \
+                 (a centimetre-grade position), and without the floor {param} moves by {gap:.3e} {u}, {sigmas:.1} × \
+                 the σ without that gap ({sigma:.2e} {u}); the data do not settle the heading drift's level (the σ for \
                  the next drive includes the gap; stating the reference's heading noise, --noise-model, \
-                 settles it)"
+                 settles it)",
+                u = unit(*param)
             ),
             VerdictReason::HeavyCommonModeNoise { wheel_common_rel_sigma } => write!(
                 f,
@@ -109,11 +105,12 @@ impl std::fmt::Display for VerdictReason {
             VerdictReason::HeadingOffsetHeld { .. } => held_offset_text(self, f),
             VerdictReason::InputNoiseBias { param, estimate, bias, sigma, sigmas, wheel_white_rel_sigma } => write!(
                 f,
-                "{param} = {estimate:.6} is biased by about {bias:+.2e}, {sigmas:.1} × its σ ({sigma:.2e}): batch \
+                "{param} = {estimate:.6} {u} is biased by about {bias:+.2e} {u}, {sigmas:.1} × its σ ({sigma:.2e} {u}): batch \
                  Gauss-Newton takes the wheel rotations as exact, and their noise on this drive (white, {:.2} % \
                  per wheel and sample, from the heading's drift against the reference) biases it beyond what its \
                  σ covers (the default method, eiv, models this noise)",
-                wheel_white_rel_sigma * 100.0
+                wheel_white_rel_sigma * 100.0,
+                u = unit(*param)
             ),
             VerdictReason::NotConverged { stage, iterations, param, step_sigmas } => write!(
                 f,
@@ -121,6 +118,33 @@ impl std::fmt::Display for VerdictReason {
                  {param} by {step_sigmas:.2} σ (raise --max-iterations)"
             ),
         }
+    }
+}
+
+/// [`VerdictReason::FallbackDisagrees`]'s text.
+fn fallback_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    match r {
+        VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, released } if !released.is_empty() => {
+            let names: Vec<&str> = released.iter().map(|s| s.name()).collect();
+            write!(
+                f,
+                "{param} = {fallback:.6} {u} is the batch Gauss-Newton fallback: with the noise level(s) held \
+                 ({}) EIV's checks failed, with them estimated they pass and EIV's estimate lies {gap:.2e} {u} \
+                 away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): the drive contradicts the held \
+                 level(s), and batch G-N's errors-in-variables bias may be as large (the σ for the next drive \
+                 includes it)",
+                names.join(", "),
+                u = unit(*param)
+            )
+        }
+        VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, .. } => write!(
+            f,
+            "{param} = {fallback:.6} {u} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} {u} \
+             away, {sigmas:.1} × the σ without that gap ({sigma:.2e} {u}): batch G-N's errors-in-variables bias \
+             may be as large (the σ for the next drive includes it)",
+            u = unit(*param)
+        ),
+        _ => Ok(()),
     }
 }
 
@@ -132,13 +156,14 @@ fn held_offset_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::
     write!(
         f,
         "the reference heading offset was held at {:.2} mrad, but fitted with θ on {} it is {:.2} mrad ({:.0} × its \
-         σ {:.3} mrad away), and {param} then moves by {shift:.3e} ({shift_sigmas:.1} × its σ): θ absorbs the \
-         offset (add --estimate heading-offset)",
+         σ {:.3} mrad away), and {param} then moves by {shift:.3e} {} ({shift_sigmas:.1} × its σ): θ absorbs \
+         the offset (add --estimate heading-offset)",
         held * 1e3,
         drive.map_or("the drive".to_string(), |k| format!("drive {k}")),
         fitted * 1e3,
         (fitted - held).abs() / sigma,
-        sigma * 1e3
+        sigma * 1e3,
+        unit(*param)
     )
 }
 
@@ -173,5 +198,20 @@ fn initial_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt:
             f,
             ": not beyond the noise, so these data do not settle whether θ or θ_0 is better (check θ on another drive)"
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A reason's numbers are SI and say so: d's σ of 1.6e-3 is in
+    /// m/(m/s²), not the text table's mm/(m/s²).
+    #[test]
+    fn a_reason_names_the_unit_of_its_numbers() {
+        let d = VerdictReason::LargeUncertainty { param: Param::D, sigma: 1.612e-3, fraction: 0.32 };
+        assert_eq!(d.to_string(), "d has a σ of 1.612e-3 m/(m/s²) (32 % of its plausible half-width)");
+        let t_r = VerdictReason::AtGuardBound { param: Param::TR, value: 1.9, fraction: 0.95 };
+        assert_eq!(t_r.to_string(), "t_r = 1.900000 m is at 95 % of its plausible half-width from θ_0");
     }
 }

@@ -212,7 +212,7 @@ fn fit_from(
         _ => r.method.clone(),
     };
     let held = r.auto_fixed.iter().copied().collect::<ParamSet>().intersection(ParamSet::THETA);
-    Ok((DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m), held))
+    Ok((DriveFit { held, ..DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m) }, held))
 }
 
 #[cfg(test)]
