@@ -327,10 +327,10 @@ fn verdict_line(theta: &Theta, report: &odocal::ValidateReport) -> Option<String
 fn change(theta: &Theta, fit: &odocal::DriveFit) -> String {
     let f = &fit.theta;
     let each = [
-        (Param::CE, format!("{:+.3} %", (f.c_e / theta.c_e - 1.0) * 100.0)),
-        (Param::CD, format!("{:+.2} mm", (f.c_d - theta.c_d) * 1e3)),
-        (Param::TR, format!("{:+.2} %", (f.t_r / theta.t_r - 1.0) * 100.0)),
-        (Param::D, format!("{:+.2} mm/(m/s²)", (f.d - theta.d) * 1e3)),
+        (Param::CE, format!("{} %", signed((f.c_e / theta.c_e - 1.0) * 100.0, 3))),
+        (Param::CD, format!("{} mm", signed((f.c_d - theta.c_d) * 1e3, 2))),
+        (Param::TR, format!("{} %", signed((f.t_r / theta.t_r - 1.0) * 100.0, 2))),
+        (Param::D, format!("{} mm/(m/s²)", signed((f.d - theta.d) * 1e3, 2))),
     ];
     let parts: Vec<String> = each
         .iter()
@@ -365,4 +365,24 @@ fn drive_fit_warning(report: &odocal::ValidateReport) -> Option<String> {
          from the calibration's (units, mount); recalibrate on this drive or check its inputs",
         report.validation.mean_position_error_m, f.ratio, f.mean_position_error_m
     ))
+}
+
+/// `x` with its sign and `digits` decimals; a value that rounds to zero is
+/// `+0.00`, not `-0.00`.
+fn signed(x: f64, digits: usize) -> String {
+    let x = if (x * 10f64.powi(digits as i32)).round() == 0.0 { 0.0 } else { x };
+    format!("{x:+.digits$}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::signed;
+
+    #[test]
+    fn signed_prints_no_negative_zero() {
+        assert_eq!(signed(-0.001, 2), "+0.00");
+        assert_eq!(signed(-0.0, 3), "+0.000");
+        assert_eq!(signed(-0.006, 2), "-0.01");
+        assert_eq!(signed(2.345, 1), "+2.3");
+    }
 }

@@ -965,6 +965,8 @@ fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
         .zip(a)
         .map(|((name, scale, unit, digits), v)| {
             let x = v * scale;
+            // A value that rounds to zero prints as 0, not -0.
+            let x = if (x * 10f64.powi(*digits as i32)).round() == 0.0 { 0.0 } else { x };
             if signed {
                 format!("{name} {x:+.digits$} {unit}")
             } else {

@@ -159,6 +159,11 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     let t_r = r.result_sigma().t_r.expect("t_r");
     let expected = (robust.covariance[2][2] + h * h + gap * gap / 3.0 + next.between_drive[2].powi(2)).sqrt();
     assert!((t_r - expected).abs() <= 1e-12 * expected, "{t_r} vs {expected}");
+    // σ_c held at 1e-5 adds 4e-4 of the within-drive σ: the text does not
+    // list it as a part of the σ for the next drive.
+    let text = r.render_text(None, None, None);
+    assert!(text.contains("± 1σ (next drive) = "), "{text}");
+    assert!(!text.contains("common-mode wheel noise (EIV's σ_c"), "{text}");
     let window_finding = r.warnings.iter().any(|w| {
         matches!(
             w,
@@ -943,4 +948,13 @@ fn the_details_name_the_released_noise_sources() {
     assert!(details.contains(&line), "{line}\nnot in\n{details}");
     let outcome = if eiv.release_kept { "the estimate (lower M)" } else { "the estimate stays" };
     assert!(details.contains(outcome), "{details}");
+}
+
+#[test]
+fn theta_in_units_prints_no_negative_zero() {
+    let tiny = [-1e-9, -2e-8, 1e-9, -3e-9];
+    assert_eq!(theta_in_units(&tiny, true), "c_e +0.000000 m, c_d +0.0000 mm, t_r +0.000000 m, d +0.0000 mm/(m/s²)");
+    assert_eq!(theta_in_units(&tiny, false), "c_e 0.000000 m, c_d 0.0000 mm, t_r 0.000000 m, d 0.0000 mm/(m/s²)");
+    let some = [-2e-6, -7e-7, 0.0, 1e-7];
+    assert_eq!(theta_in_units(&some, true), "c_e -0.000002 m, c_d -0.0007 mm, t_r +0.000000 m, d +0.0001 mm/(m/s²)");
 }

@@ -15,6 +15,10 @@ use crate::model::extrinsics::ExtrinsicsEstimate;
 use crate::model::param::Param;
 use crate::model::Theta;
 
+/// Smallest EIV common-mode wheel-scale σ_c (relative) the text names as a
+/// part of the σ for the next drive: the smallest that prints as 0.01 %.
+const LISTED_COMMON_MODE_REL_SIGMA: f64 = 5e-5;
+
 fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
     match &r.detail {
         MethodDetail::Eiv(d) => Some(d),
@@ -435,8 +439,10 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
             } else {
                 format!("; {}: its batch G-N start's larger cluster-robust σ", raised.join(", "))
             };
+            // A σ_c that prints as 0.00 % adds less than 0.2 % of the
+            // within-drive σ (`common_mode` is within · σ_c / 2.5 %): not listed.
             let common = match n.wheel_common_rel_sigma {
-                Some(s) if n.common_mode.iter().any(|h| *h > 0.0) => {
+                Some(s) if s >= LISTED_COMMON_MODE_REL_SIGMA && n.common_mode.iter().any(|h| *h > 0.0) => {
                     format!(" ⊕ common-mode wheel noise (EIV's σ_c {:.2} %)", s * 100.0)
                 }
                 _ => String::new(),
