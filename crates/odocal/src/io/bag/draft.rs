@@ -164,7 +164,11 @@ fn write_pose_tables(w: &mut String, pose_type: MessageType) {
             w,
             "\n[pose.position]\nkind = \"lat_lon\"\nlat = \"latitude\"\nlon = \"longitude\"\nalt = \"altitude\""
         );
-        let _ = writeln!(w, "# no [pose.heading]: derived from the track (NavSatFix has none)");
+        let _ = writeln!(
+            w,
+            "# no [pose.heading]: derived from the track (NavSatFix has none), over a chord of\n\
+             # pose.derive_heading_baseline_m (default 2 m) of travel; see the manifest reference"
+        );
         let _ = writeln!(w, "\n# [pose.quality]   # CHECK: keep only good fixes, e.g. status 2 (GBAS/RTK)");
         let _ = writeln!(w, "# column = \"status\"\n# accept = [2]");
     } else {
