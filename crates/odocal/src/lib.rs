@@ -37,6 +37,9 @@
 //! validation drives and progress) with [`CalibrationOptions`] and the
 //! [`CalibrationReport`] with its [`Verdict`], [`validate()`] for a θ on a
 //! drive, [`ParamFile`] to write and read the result, and [`Error`].
+//! docs/guide.md, "The Rust library", goes through a manifest's drive:
+//! its settings, a held-out half, progress and a parameter file judged
+//! on another drive.
 //!
 //! [`calibrate()`] uses only the options it is given. A manifest's
 //! `[noise]`, `[reference]` and `[calibration]` tables, which `odocal
@@ -213,6 +216,12 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 #[cfg(doctest)]
 #[doc = include_str!("../../../README.md")]
 struct ReadmeDoctests;
+
+/// The Rust example of docs/guide.md ("The Rust library"), compiled as a
+/// doc-test.
+#[cfg(doctest)]
+#[doc = include_str!("../../../docs/guide.md")]
+struct GuideDoctests;
 
 // Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
