@@ -102,10 +102,10 @@
 //! # simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(2) })?.drive.write_csv(&other_path)?;
 //! let (drive, _notes) = Drive::read_csv(&path)?;
 //! let report = calibrate(&drive, &CalibrationOptions::default())?;
-//! // The 1σ for the next drive of the vehicle, per parameter; None for a held one.
+//! // The 1σ for the next drive of the vehicle; its fields are Option<f64>, None for a held parameter.
 //! let sigma = report.result_sigma();
 //! println!("θ: {}", report.theta);
-//! println!("σ: c_e {:?} m, c_d {:?} m, t_r {:?} m, d {:?} m/(m/s²)", sigma.c_e, sigma.c_d, sigma.t_r, sigma.d);
+//! println!("σ: {sigma}");
 //! println!("verdict: {}", report.verdict); // level and reasons; `report.verdict.level` to branch on
 //! assert_ne!(report.verdict.level, VerdictLevel::Rejected);
 //!
