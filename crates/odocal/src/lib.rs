@@ -37,6 +37,9 @@
 //! validation drives and progress) with [`CalibrationOptions`] and the
 //! [`CalibrationReport`] with its [`Verdict`], [`validate()`] for a θ on a
 //! drive, [`ParamFile`] to write and read the result, and [`Error`].
+//! docs/guide.md, "The Rust library", goes through a manifest's drive:
+//! its settings, a held-out half, progress and a parameter file judged
+//! on another drive.
 //!
 //! [`calibrate()`] uses only the options it is given. A manifest's
 //! `[noise]`, `[reference]` and `[calibration]` tables, which `odocal
@@ -51,8 +54,9 @@
 //! let manifests: Vec<ManifestSettings> =
 //!     import_report.as_ref().map(ManifestSettings::try_from).transpose()?.into_iter().collect();
 //! let opts = Settings::default().resolve(&manifests, Caller::CommandLine)?.options;
+//! // This 60 s slice is too short for the default validation segments; a
+//! // drive of a few km calibrates with `odocal::calibrate(&drive, &opts)?`.
 //! # let _ = (drive, opts);
-//! // odocal::calibrate(&drive, &opts)?
 //! # Ok(()) }
 //! ```
 //!
@@ -82,12 +86,62 @@
 //! without it. tests/architecture.rs holds the number of public items to a
 //! budget.
 //!
-//! ## Example
+//! ## Examples
+//!
+//! A drive CSV calibrated with the defaults: θ, its σ and the verdict, the
+//! parameter file as `odocal calibrate --params-out` writes it, and θ
+//! validated on another drive as `odocal validate --theta FILE` does.
+//!
+//! ```
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use odocal::{calibrate, validate, CalibrationOptions, Drive, ValidateOptions, VerdictLevel};
+//! # use odocal::sim::{simulate, SimOptions};
+//! # let dir = tempfile::tempdir()?;
+//! # let (path, other_path) = (dir.path().join("drive.csv"), dir.path().join("other.csv"));
+//! # simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) })?.drive.write_csv(&path)?;
+//! # simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(2) })?.drive.write_csv(&other_path)?;
+//! let (drive, _notes) = Drive::read_csv(&path)?;
+//! let report = calibrate(&drive, &CalibrationOptions::default())?;
+//! // The 1σ for the next drive of the vehicle; its fields are Option<f64>, None for a held parameter.
+//! let sigma = report.result_sigma();
+//! println!("θ: {}", report.theta);
+//! println!("σ: {sigma}");
+//! println!("verdict: {}", report.verdict); // level and reasons; `report.verdict.level` to branch on
+//! assert_ne!(report.verdict.level, VerdictLevel::Rejected);
+//!
+//! let file = report.param_file(&path.display().to_string());
+//! let params = path.with_file_name("odocal.yaml");
+//! odocal::output::write_text(&params, &file.text_for(&params)?)?;
+//!
+//! // The file's reference extrinsics, with the other drive's own heading offset.
+//! let (other, _) = Drive::read_csv(&other_path)?;
+//! let mut opts = ValidateOptions::default();
+//! opts.set_extrinsics(Some(&file), None, false);
+//! let v = validate(&other, &report.theta, &opts, None)?;
+//! println!("Ē_p on the other drive: {:.2} m", v.validation.mean_position_error_m);
+//! assert!(v.drive_fit.expect("the other drive's own fit").fits);
+//! # Ok(()) }
+//! ```
+//!
+//! Errors are [`Error`]: its message names the file, line, column or option
+//! and what to do, and its variants carry the same as fields.
+//!
+//! ```
+//! use odocal::{Drive, Error};
+//! match Drive::read_csv("no-such-drive.csv") {
+//!     Err(Error::Io { path, source }) => assert_eq!(source.kind(), std::io::ErrorKind::NotFound, "{}", path.display()),
+//!     Err(Error::Csv { line, column, .. }) => eprintln!("line {line}, column {column:?}"),
+//!     Err(Error::MissingColumns { missing, .. }) => eprintln!("missing {missing:?}"),
+//!     Err(e) => eprintln!("{e}"), // `Error` is non-exhaustive
+//!     Ok(_) => unreachable!(),
+//! }
+//! ```
+//!
+//! A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
 //! use odocal::{calibrate, sim, CalibrationOptions, Method};
-//! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, noise: "off".parse()?, ..sim::SimOptions::paper(1) })?;
 //! let opts = CalibrationOptions { method: Method::BatchGn, ..Default::default() };
 //! let report = calibrate(&sim.drive, &opts)?;
@@ -162,6 +216,12 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 #[cfg(doctest)]
 #[doc = include_str!("../../../README.md")]
 struct ReadmeDoctests;
+
+/// The Rust example of docs/guide.md ("The Rust library"), compiled as a
+/// doc-test.
+#[cfg(doctest)]
+#[doc = include_str!("../../../docs/guide.md")]
+struct GuideDoctests;
 
 // Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};

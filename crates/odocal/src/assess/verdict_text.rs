@@ -1,7 +1,7 @@
 //! The text of each verdict reason: what a user reads in the CLI's output,
 //! the parameter file's comment and the HTML report.
 
-use super::trust::VerdictReason;
+use super::trust::{Verdict, VerdictReason};
 use crate::eiv::NoiseSource;
 use crate::model::param::Param;
 
@@ -12,6 +12,31 @@ fn unit(p: Param) -> &'static str {
         Param::D => "m/(m/s²)",
         Param::HeadingOffset => "rad",
         Param::CE | Param::CD | Param::TR | Param::LeverX | Param::LeverY => "m",
+    }
+}
+
+/// The level and its reasons on one line: `accepted`, or the level, a
+/// colon and the reasons separated by `; `
+/// (`doubtful: t_r has a σ of … m (…)`).
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{calibrate, CalibrationOptions, VerdictLevel, sim::{simulate, SimOptions}};
+/// let drive = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) })?.drive;
+/// let report = calibrate(&drive, &CalibrationOptions::default())?;
+/// println!("verdict: {}", report.verdict);
+/// assert!(report.verdict.to_string().starts_with(&report.verdict.level.to_string()));
+/// assert_ne!(report.verdict.level, VerdictLevel::Rejected);
+/// # Ok(()) }
+/// ```
+impl std::fmt::Display for Verdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.level)?;
+        for (i, r) in self.reasons.iter().enumerate() {
+            f.write_str(if i == 0 { ": " } else { "; " })?;
+            write!(f, "{r}")?;
+        }
+        Ok(())
     }
 }
 

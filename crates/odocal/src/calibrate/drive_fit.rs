@@ -23,6 +23,13 @@ use crate::progress::ProgressFn;
 /// reachable-minimum search (one stage per box searched, advancing by one
 /// per evaluation of Ē_p).
 ///
+/// [`ValidateOptions::default`] validates at the rear axle with no heading
+/// offset. For a calibration's θ, [`ValidateOptions::set_extrinsics`] with
+/// its parameter file ([`CalibrationReport::param_file`](crate::CalibrationReport::param_file))
+/// sets the reference extrinsics the calibration estimated and re-estimates
+/// the drive's own heading offset, as `odocal validate --theta FILE` does
+/// ([the crate's examples](crate#examples) show it).
+///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{validate, ValidateOptions, sim::{simulate, SimOptions}};

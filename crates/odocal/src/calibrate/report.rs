@@ -690,6 +690,42 @@ impl ResultSigma {
     }
 }
 
+/// Each parameter's 1σ in the units and digits of θ's `Display`, `held`
+/// for a parameter without one: `c_e ± 0.001124 m, c_d ± 0.2535 mm, t_r ±
+/// 0.010935 m, d held`. What it covers is [`ResultSigma::covers`].
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{calibrate, CalibrationOptions, sim::{simulate, SimOptions}};
+/// let drive = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) })?.drive;
+/// let report = calibrate(&drive, &CalibrationOptions::default())?;
+/// let sigma = report.result_sigma();
+/// println!("θ: {}\nσ: {sigma} ({})", report.theta, sigma.covers);
+/// assert!(sigma.to_string().starts_with("c_e ± "));
+/// # Ok(()) }
+/// ```
+impl std::fmt::Display for ResultSigma {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Name, scale to the unit shown, digits, unit: as `Theta`'s Display.
+        let rows = [
+            ("c_e", self.c_e, 1.0, 6, "m"),
+            ("c_d", self.c_d, 1e3, 4, "mm"),
+            ("t_r", self.t_r, 1.0, 6, "m"),
+            ("d", self.d, 1e3, 4, "mm/(m/s²)"),
+        ];
+        for (i, (name, sigma, scale, digits, unit)) in rows.into_iter().enumerate() {
+            if i > 0 {
+                f.write_str(", ")?;
+            }
+            match sigma {
+                Some(s) => write!(f, "{name} ± {:.digits$} {unit}", s * scale)?,
+                None => write!(f, "{name} held")?,
+            }
+        }
+        Ok(())
+    }
+}
+
 /// `[c_e, c_d, t_r, d]`.
 impl From<ResultSigma> for [Option<f64>; 4] {
     fn from(sigma: ResultSigma) -> Self {
