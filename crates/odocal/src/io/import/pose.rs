@@ -366,7 +366,7 @@ mod tests {
 
     /// The heading of consecutive steps (held below `min_speed`, the
     /// first back-filled), the mean of the two steps either side of a
-    /// sample: the arithmetic a chord replaces, to compare with.
+    /// sample: the step-by-step arithmetic, to compare the chord with.
     fn consecutive_steps(t: &[f64], x: &[f64], y: &[f64], min_speed: f64) -> Vec<f64> {
         let n = t.len();
         let steps: Vec<Option<f64>> = (0..n - 1)
