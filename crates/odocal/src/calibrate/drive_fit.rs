@@ -103,11 +103,11 @@ fn drive_fit(
     let batch_gn = Method::BatchGn;
     let mut starts = vec![("θ", *theta), ("θ_0", Theta::PAPER_INITIAL)];
     starts.retain(|(_, t)| t.check_physical_limits().is_ok());
-    let mut best: Option<(DriveFit, ParamSet)> = None;
+    let mut best: Option<DriveFit> = None;
     let mut why: Vec<(Vec<&str>, String)> = Vec::new();
     for (name, start) in starts {
         match fit_from(drive, &start, &batch_gn, opts, given_m) {
-            Ok(fit) if best.as_ref().is_none_or(|b| fit.0.mean_position_error_m < b.0.mean_position_error_m) => {
+            Ok(fit) if best.as_ref().is_none_or(|b| fit.mean_position_error_m < b.mean_position_error_m) => {
                 best = Some(fit)
             }
             Ok(_) => {}
@@ -120,23 +120,23 @@ fn drive_fit(
     // Batch G-N's fit stands unless it is worse than θ itself: a fit that
     // found nothing better than θ can only make θ look good.
     let (kept, batch_gn_failed) = match best {
-        Some((fit, held)) if !worse(&fit, given_m) && held.is_empty() => return Ok(fit),
-        Some((fit, held)) if !worse(&fit, given_m) => {
-            let why = format!("{} held {held}, which this drive does not determine", fit.method);
+        Some(fit) if !worse(&fit, given_m) && fit.held.is_empty() => return Ok(fit),
+        Some(fit) if !worse(&fit, given_m) => {
+            let why = format!("{} held {}, which this drive does not determine", fit.method, fit.held);
             (Some(fit), why)
         }
-        Some((fit, _)) if !failed(&fit, given_m) => {
+        Some(fit) if !failed(&fit, given_m) => {
             let why = format!("{} gives {:.4} m, more than θ's {given_m:.4} m", fit.method, fit.mean_position_error_m);
             (Some(fit), why)
         }
-        Some((fit, _)) => (None, failed_fit(&fit, given_m)),
+        Some(fit) => (None, failed_fit(&fit, given_m)),
         None => {
             let why: Vec<String> = why.iter().map(|(names, w)| format!("from {}: {w}", names.join(" and "))).collect();
             (None, format!("batch G-N on this drive {}", why.join("; ")))
         }
     };
     let default = Method::default();
-    match (fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m).map(|f| f.0), kept) {
+    match (fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m), kept) {
         (Ok(fit), kept)
             if !failed(&fit, given_m)
                 && kept.as_ref().is_none_or(|k| fit.mean_position_error_m < k.mean_position_error_m) =>
@@ -171,16 +171,16 @@ fn failed_fit(fit: &DriveFit, given_m: f64) -> String {
 }
 
 /// `method` on `drive` from `start` (module docs of [`drive_fit`]), judged
-/// against `given_m`, with the parameters of θ it held because the drive
-/// does not determine them; the reason when the fit is implausible or
-/// fails.
+/// against `given_m` (with the parameters of θ it held because the drive
+/// does not determine them, [`DriveFit::held`]); the reason when the fit
+/// is implausible or fails.
 fn fit_from(
     drive: &Drive,
     start: &Theta,
     method: &Method,
     opts: &ValidateOptions,
     given_m: f64,
-) -> std::result::Result<(DriveFit, ParamSet), String> {
+) -> std::result::Result<DriveFit, String> {
     let mut free = ParamSet::THETA;
     if opts.reestimate_heading_offset {
         free = free.with(Param::HeadingOffset);
@@ -219,7 +219,7 @@ fn fit_from(
         _ => r.method.clone(),
     };
     let held = r.auto_fixed.iter().copied().collect::<ParamSet>().intersection(ParamSet::THETA);
-    Ok((DriveFit { held, ..DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m) }, held))
+    Ok(DriveFit { held, ..DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m) })
 }
 
 #[cfg(test)]
