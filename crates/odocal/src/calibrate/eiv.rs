@@ -131,7 +131,7 @@ use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarni
 use crate::error::{Error, Result};
 use crate::identify::{batch_gauss_newton_drives, IdentifyOptions, IdentifyReport, Observability};
 use crate::model::param::{Param, ParamSet};
-use crate::model::Theta;
+use crate::model::{Theta, THETA_UNITS};
 use crate::progress::{emit, Progress, ProgressFn};
 
 mod refits;
@@ -951,11 +951,6 @@ impl EivDetail {
         out
     }
 }
-
-/// How the method details print θ: per parameter its name, the factor from
-/// SI, the unit and the decimals (as the θ table).
-const THETA_UNITS: [(&str, f64, &str, usize); 4] =
-    [("c_e", 1.0, "m", 6), ("c_d", 1e3, "mm", 4), ("t_r", 1.0, "m", 6), ("d", 1e3, "mm/(m/s²)", 4)];
 
 /// `[c_e, c_d, t_r, d]` (SI) as "c_e … m, c_d … mm, t_r … m, d … mm/(m/s²)",
 /// with a sign when `signed`.

@@ -706,14 +706,8 @@ impl ResultSigma {
 /// ```
 impl std::fmt::Display for ResultSigma {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        // Name, scale to the unit shown, digits, unit: as `Theta`'s Display.
-        let rows = [
-            ("c_e", self.c_e, 1.0, 6, "m"),
-            ("c_d", self.c_d, 1e3, 4, "mm"),
-            ("t_r", self.t_r, 1.0, 6, "m"),
-            ("d", self.d, 1e3, 4, "mm/(m/s²)"),
-        ];
-        for (i, (name, sigma, scale, digits, unit)) in rows.into_iter().enumerate() {
+        let sigma = [self.c_e, self.c_d, self.t_r, self.d];
+        for (i, ((name, scale, unit, digits), sigma)) in crate::model::THETA_UNITS.iter().zip(sigma).enumerate() {
             if i > 0 {
                 f.write_str(", ")?;
             }

@@ -141,6 +141,11 @@ impl From<&Theta> for [f64; 4] {
     }
 }
 
+/// How text prints θ and its σ (θ's `Display`, the θ table): per parameter
+/// its name, the factor from SI, the unit and the decimals.
+pub(crate) const THETA_UNITS: [(&str, f64, &str, usize); 4] =
+    [("c_e", 1.0, "m", 6), ("c_d", 1e3, "mm", 4), ("t_r", 1.0, "m", 6), ("d", 1e3, "mm/(m/s²)", 4)];
+
 /// Each parameter named with its value and unit: `c_e = 1.950000 m, c_d =
 /// -2.0000 mm, t_r = 1.530000 m, d = 0.8000 mm/(m/s²)`. It names the
 /// parameters itself, so text around it introduces it without a `θ =`
