@@ -24,7 +24,7 @@ pub(crate) struct PyHistory {
 
 impl PyHistory {
     fn with<T>(&self, f: impl FnOnce(&mut History) -> odocal::Result<T>) -> PyResult<T> {
-        let mut db = self.db.lock().map_err(|_| PyRuntimeError::new_err("the history is poisoned by a panic"))?;
+        let mut db = crate::lock(&self.db, "history")?;
         f(&mut db).map_err(lib_err)
     }
 }

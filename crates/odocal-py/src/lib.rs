@@ -53,6 +53,13 @@ fn lib_err(e: odocal::Error) -> PyErr {
     OdocalError::new_err(e.to_string())
 }
 
+/// `m` locked; `what` names its object in the error when a panic poisoned
+/// it. The classes that hold their state behind a mutex (a call from
+/// another thread waits for the running one) lock with this.
+fn lock<'a, T>(m: &'a std::sync::Mutex<T>, what: &str) -> PyResult<std::sync::MutexGuard<'a, T>> {
+    m.lock().map_err(|_| pyo3::exceptions::PyRuntimeError::new_err(format!("the {what} is poisoned by a panic")))
+}
+
 /// Mean position error Ē_p of θ on the validation segments of `drive`
 /// (the CLI's `validate --json`): a dict with `theta`,
 /// `mean_position_error_m`, `segments` and `per_segment_m`. The drive's

@@ -5,7 +5,7 @@
 use std::sync::{Mutex, MutexGuard};
 
 use numpy::PyArray2;
-use pyo3::exceptions::{PyRuntimeError, PyTypeError};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde::de::DeserializeOwned;
@@ -66,7 +66,7 @@ pub(crate) struct PyCalibrator {
 
 /// The calibrator behind `cal`, locked (a push holds it without the GIL).
 fn lock(cal: &Mutex<Calibrator>) -> PyResult<MutexGuard<'_, Calibrator>> {
-    cal.lock().map_err(|_| PyRuntimeError::new_err("the calibrator is poisoned by a panic"))
+    crate::lock(cal, "calibrator")
 }
 
 impl PyCalibrator {

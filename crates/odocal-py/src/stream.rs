@@ -5,7 +5,6 @@
 use std::sync::{Mutex, MutexGuard};
 
 use numpy::IntoPyArray;
-use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -34,7 +33,7 @@ struct State {
 
 /// The state behind `state`, locked (a push holds it without the GIL).
 fn lock(state: &Mutex<State>) -> PyResult<MutexGuard<'_, State>> {
-    state.lock().map_err(|_| PyRuntimeError::new_err("the stream is poisoned by a panic"))
+    crate::lock(state, "stream")
 }
 
 #[pymethods]
