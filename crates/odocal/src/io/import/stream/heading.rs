@@ -7,7 +7,7 @@
 //!
 //! A sample's heading is known once the track has gone half the baseline
 //! further, or the chord's `span` of pose time has passed (the baseline over
-//! the minimum speed, 1 s at the defaults; the baseline over
+//! the minimum speed, 2 s at the defaults; the baseline over
 //! [`CHORD_SPEED_FLOOR_M_PER_S`](crate::io::import::pose::CHORD_SPEED_FLOOR_M_PER_S)
 //! at most), whichever comes first: the look-ahead is bounded in time, and
 //! so in samples by the pose's rate. The samples at the start also wait
