@@ -187,7 +187,7 @@ fn an_implausible_re_estimated_heading_offset_is_warned_about() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!stderr(&o).contains("warning: the heading offset"), "{}", stderr(&o));
     // … unless the file's offset is many cluster-robust σ away.
-    let far = param_file(dir.path(), "far.yaml", 0.09);
+    let far = param_file(dir.path(), "far.yaml", 0.12);
     let o = odocal(&["validate", &d, "--theta", &far]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("times its cluster-robust σ"), "{}", stderr(&o));
