@@ -354,8 +354,11 @@ research_pub! {
     /// sandwich `H⁻¹ · G/(G−1) Σ_c g_c g_cᵀ · H⁻¹` (its first-order form,
     /// which stands in when some `H − H_c` is singular) it does not run
     /// short for a parameter that a few clusters determine. It is itself
-    /// estimated from `G` clusters, so with few of them it is noisy (a
-    /// Student-t with `G − 1` degrees of freedom is the fairer quantile).
+    /// estimated from `G` clusters, so with few of them it is noisy: θ̂'s
+    /// error over its σ follows Student's t with `G − 1` degrees of freedom,
+    /// and `V` is scaled by `(t_{G−1}(Φ(3))/3)²` so that θ̂ ± 3σ keeps the
+    /// 99.73 % of a known σ (1.36 × the σ at 10 clusters, 1.09 × at 30).
+    /// Each variance is also raised where neighbouring clusters correlate.
     ///
     /// It does not know about bias: input noise biases batch Gauss-Newton
     /// (docs/method.md §9), and an interval around a biased estimate can miss the truth
