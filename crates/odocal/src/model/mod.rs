@@ -150,16 +150,21 @@ pub(crate) const THETA_UNITS: [(&str, f64, &str, usize); 4] =
 /// -2.0000 mm, t_r = 1.530000 m, d = 0.8000 mm/(m/s²)`. It names the
 /// parameters itself, so text around it introduces it without a `θ =`
 /// (`at c_e = …`, `θ: c_e = …`, `θ_0 (c_e = …)`).
+///
+/// ```
+/// use odocal::Theta;
+/// let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+/// assert_eq!(th.to_string(), "c_e = 1.950000 m, c_d = -2.0000 mm, t_r = 1.530000 m, d = 0.8000 mm/(m/s²)");
+/// ```
 impl std::fmt::Display for Theta {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "c_e = {:.6} m, c_d = {:.4} mm, t_r = {:.6} m, d = {:.4} mm/(m/s²)",
-            self.c_e,
-            self.c_d * 1e3,
-            self.t_r,
-            self.d * 1e3
-        )
+        for (i, (&(name, scale, unit, digits), x)) in THETA_UNITS.iter().zip(self.to_array()).enumerate() {
+            if i > 0 {
+                f.write_str(", ")?;
+            }
+            write!(f, "{name} = {:.digits$} {unit}", x * scale)?;
+        }
+        Ok(())
     }
 }
 
@@ -190,19 +195,14 @@ struct ThetaWithSigma<'a> {
 
 impl std::fmt::Display for ThetaWithSigma<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let (t, s) = (self.theta, self.sigma);
-        write!(
-            f,
-            "c_e = {:.6} ± {:.6} m, c_d = {:.4} ± {:.4} mm, t_r = {:.6} ± {:.6} m, d = {:.4} ± {:.4} mm/(m/s²)",
-            t.c_e,
-            s.c_e,
-            t.c_d * 1e3,
-            s.c_d * 1e3,
-            t.t_r,
-            s.t_r,
-            t.d * 1e3,
-            s.d * 1e3
-        )
+        let values = self.theta.to_array().into_iter().zip(self.sigma.to_array());
+        for (i, (&(name, scale, unit, digits), (x, s))) in THETA_UNITS.iter().zip(values).enumerate() {
+            if i > 0 {
+                f.write_str(", ")?;
+            }
+            write!(f, "{name} = {:.digits$} ± {:.digits$} {unit}", x * scale, s * scale)?;
+        }
+        Ok(())
     }
 }
 
