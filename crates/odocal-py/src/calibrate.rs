@@ -14,7 +14,7 @@ use odocal::Drive;
 use odocal::ReferenceSpec;
 use odocal::{Holdout, Progress};
 
-use crate::convert::{to_json, to_py};
+use crate::convert::{to_json, to_py, type_name};
 use crate::drive::{drives_arg, Provenance, PyDrive};
 use crate::files::distinct_drives;
 use crate::run::{run_detached, with_threads};
@@ -139,11 +139,6 @@ fn plan(
         validate_on: validate_on_drives.unwrap_or_default(),
         carry_heading_offset,
     })
-}
-
-/// The Python type name of `v`, for messages.
-fn type_name(v: &Bound<'_, PyAny>) -> String {
-    v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "value".into())
 }
 
 /// The CLI's JSON report: the library report plus `truth` (simulated

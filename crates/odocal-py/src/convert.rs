@@ -381,12 +381,18 @@ pub(crate) fn table(name: &str, v: &Bound<'_, PyAny>, rows: usize) -> PyResult<n
     }
 }
 
+/// The Python type name of `v`, for messages (`value` when it cannot be
+/// read).
+pub(crate) fn type_name(v: &Bound<'_, PyAny>) -> String {
+    v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "value".into())
+}
+
 /// The error of an argument `name` that numpy could not make an array of
 /// `ndim` dimensions of (its error `e`): what it got (type and numpy's
 /// shape) and what is `expected`; numpy's message when the shape fits
 /// (values that are not numbers).
 pub(crate) fn not_an_array_of(name: &str, v: &Bound<'_, PyAny>, ndim: usize, expected: &str, e: &PyErr) -> PyErr {
-    let kind = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "value".into());
+    let kind = type_name(v);
     let shape =
         v.py().import("numpy").and_then(|np| np.call_method1("shape", (v,))).and_then(|s| s.extract::<Vec<usize>>());
     crate::OdocalError::new_err(match shape {
