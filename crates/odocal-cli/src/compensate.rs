@@ -132,6 +132,7 @@ fn reference_extrinsics(
     let mut opts = ValidateOptions { fit_drive: false, ..ValidateOptions::default() };
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
     let start = crate::validate::OffsetStart::of(&from_file, stated.is_some());
+    let mut own = false;
     let (extrinsics, fit): (Extrinsics, Option<HeadingOffsetFit>) = if opts.reestimate_heading_offset {
         let r = odocal::validate(drive, &a.theta.theta, &opts, None).map_err(|e| {
             anyhow::anyhow!(
@@ -139,6 +140,7 @@ fn reference_extrinsics(
                 a.drive.display()
             )
         })?;
+        own = r.calibration_drive;
         (r.extrinsics, r.heading_offset_fit)
     } else {
         (opts.extrinsics, None)
@@ -154,6 +156,9 @@ fn reference_extrinsics(
     }
     if let Some(fit) = fit {
         notes.push(start.describe(&fit));
+    }
+    if own {
+        notes.push(crate::validate::calibration_drive_line(extrinsics.heading_offset));
     }
     Ok((extrinsics, notes))
 }

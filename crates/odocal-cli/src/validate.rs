@@ -261,6 +261,17 @@ pub(crate) fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestim
     parts.join(", ")
 }
 
+/// The line that says the heading offset `delta` (rad) was held at the
+/// calibration's own estimate for this drive, which the calibration ran on
+/// ([`odocal::ValidateReport::calibration_drive`]).
+pub(crate) fn calibration_drive_line(delta: f64) -> String {
+    format!(
+        "heading offset held at {:.1} mrad, the calibration's own estimate for this drive: the parameter file's \
+         calibration ran on it (the same drive fingerprint)",
+        delta * 1e3
+    )
+}
+
 /// The report for humans.
 fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_from: &str, start: OffsetStart) {
     let r = &report.validation;
@@ -278,6 +289,9 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
     }
     if let Some(fit) = &report.heading_offset_fit {
         println!("{}", start.describe(fit));
+    }
+    if report.calibration_drive {
+        println!("{}", calibration_drive_line(report.extrinsics.heading_offset));
     }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(line) = verdict_line(&a.theta.theta, report) {

@@ -110,8 +110,17 @@ fn validate<'py>(
         files::warn_all(py, &[format!("{why}; θ is judged here as it stands")])?;
     }
     // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.
+    // With the calibration drives' fingerprints, so that validation on one
+    // of them holds the calibration's own heading offset for it.
     let file = match report_json {
-        Some(j) => Some(report_from_json(j)?.param_file("")),
+        Some(j) => {
+            let mut f = report_from_json(j)?.param_file("");
+            let value = serde_json::from_str::<serde_json::Value>(j).unwrap_or_default();
+            if let Some(fp) = files::calibration_fingerprints(&value) {
+                f.provenance.push(("fingerprint".into(), fp));
+            }
+            Some(f)
+        }
         None => file,
     };
     let mut opts = odocal::ValidateOptions { fit_drive, ..odocal::ValidateOptions::default() };

@@ -308,6 +308,27 @@ def test_a_joint_calibration_reports_each_drive_s_heading_offset(odocal_bin, csv
     assert r["extrinsics"]["value"]["heading_offset"] == pytest.approx(np.mean([p["value"] for p in per]), abs=1e-15)
 
 
+def test_validate_on_a_calibration_drive_holds_its_own_heading_offset(tmp_path, csvs):
+    """On a drive the calibration ran on (the same drive fingerprint), validate holds the
+    calibration's own heading offset for it, so Ē_p is the calibration's own: with the
+    report and with its parameter file; each drive of a joint calibration its own."""
+    da, db = (odocal.Drive.from_csv(p) for p in csvs[:2])
+    r = odocal.calibrate(da)
+    own = r.to_dict()
+    r.write_params(tmp_path / "p.yaml")
+    for theta in (r, tmp_path / "p.yaml"):
+        v = odocal.validate(da, theta)
+        assert v["calibration_drive"] is True and "heading_offset_fit" not in v, v
+        assert v["extrinsics"]["heading_offset"] == own["extrinsics"]["value"]["heading_offset"]
+        assert v["mean_position_error_m"] == own["validation"]["mean_position_error_m"]
+    other = odocal.validate(db, r)
+    assert "calibration_drive" not in other and "heading_offset_fit" in other
+    joint = odocal.calibrate([da, db])
+    for drive, row in zip((da, db), joint.to_dict()["heading_offset_per_drive"]):
+        v = odocal.validate(drive, joint)
+        assert v["calibration_drive"] is True and v["extrinsics"]["heading_offset"] == row["value"]
+
+
 def test_drives_that_count_wheel_revolutions_otherwise_are_not_mixed(tmp_path):
     """c_e is per model revolution, which the manifest defines: drives that
     count revolutions otherwise are not calibrated or validated together, the

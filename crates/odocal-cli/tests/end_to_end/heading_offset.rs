@@ -114,6 +114,63 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
     assert!(on["validation"]["mean_position_error_m"].as_f64().expect("Ē_p") > 0.1, "{on}");
 }
 
+/// On a drive the parameter file's calibration ran on (the same drive
+/// fingerprint), `validate` holds the calibration's own heading offset for
+/// it instead of re-estimating one with θ held, so its Ē_p is the
+/// calibration's own validation, to the bit; a joint calibration's file
+/// gives each of its drives its own offset.
+#[test]
+fn validation_on_a_calibration_drive_holds_the_calibration_s_heading_offset() {
+    let d = tempfile::tempdir().expect("tmp");
+    // A noisy drive, calibrated by default: θ and δ are fitted together,
+    // and δ re-estimated with θ held would differ.
+    let noisy = common::simulated_drive(d.path(), "noisy.csv", &["--seed", "3", "--length-km", "4"]);
+    let params = d.path().join("p.yaml");
+    let p = params.to_str().expect("utf8");
+    let cal = calibrate_json(Path::new(&noisy), &["--params-out", p]);
+    let delta = cal["extrinsics"]["value"]["heading_offset"].as_f64().expect("δ");
+    let own = cal["validation"]["mean_position_error_m"].as_f64().expect("Ē_p");
+    let (v, text) = validate(&[&noisy, "--theta", p]);
+    assert_eq!(v["calibration_drive"], serde_json::json!(true), "{v}");
+    assert!(v["heading_offset_fit"].is_null(), "{v}");
+    assert_eq!(v["extrinsics"]["heading_offset"].as_f64().map(f64::to_bits), Some(delta.to_bits()));
+    assert_eq!(v["mean_position_error_m"].as_f64().map(f64::to_bits), Some(own.to_bits()), "{v}");
+    let line = format!("heading offset held at {:.1} mrad, the calibration's own estimate for this drive", delta * 1e3);
+    assert!(text.contains(&line) && !text.contains("re-estimated"), "{text}");
+    // Without the file's drives, the offset is re-estimated, and differs.
+    let file = odocal::ParamFile::read(&params, None).expect("read");
+    let theta = odocal::Theta::try_from(&file).expect("θ");
+    let mut vopts = odocal::ValidateOptions::default();
+    vopts.set_extrinsics(Some(&file), None, false);
+    assert_eq!(vopts.calibration_heading_offsets.len(), 1);
+    let (loaded, _) = odocal::load_drive(Path::new(&noisy)).expect("load");
+    vopts.calibration_heading_offsets.clear();
+    let refit = odocal::validate(&loaded, &theta, &vopts, None).expect("validate");
+    let refit_delta = refit.heading_offset_fit.expect("re-estimated").value;
+    assert!((refit_delta - delta).abs() > 1e-6, "re-estimated {refit_delta} against the calibration's {delta}");
+    assert!(!refit.calibration_drive);
+
+    // A joint calibration: each drive its own offset, not the mean.
+    let a = drive(d.path(), "a.csv", 33, 0.0188);
+    let b = drive(d.path(), "b.csv", 34, 0.0142);
+    let joint = d.path().join("joint.yaml");
+    let j = joint.to_str().expect("utf8");
+    let args = ["--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30", "--params-out", j];
+    let o = odocal(&[["calibrate", &a, &b, "--json", "-"].as_slice(), &args].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cal: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let per = cal["heading_offset_per_drive"].as_array().expect("per drive");
+    for (path, row) in [&a, &b].into_iter().zip(per) {
+        let (v, _) = validate(&[path, "--theta", j]);
+        assert_eq!(v["calibration_drive"], serde_json::json!(true), "{path}: {v}");
+        let want = row["value"].as_f64().expect("δ");
+        assert_eq!(v["extrinsics"]["heading_offset"].as_f64().map(f64::to_bits), Some(want.to_bits()), "{path}");
+    }
+    // Another drive: re-estimated as before.
+    let (v, _) = validate(&[&noisy, "--theta", j]);
+    assert!(v["calibration_drive"].is_null() && !v["heading_offset_fit"].is_null(), "{v}");
+}
+
 /// The text between `start` and the next `end` after it in `s`.
 fn between<'a>(s: &'a str, start: &str, end: &str) -> &'a str {
     let i = s.find(start).unwrap_or_else(|| panic!("no {start:?} in the page")) + start.len();
@@ -191,7 +248,13 @@ fn a_joint_calibration_fits_each_drive_s_heading_offset() {
     assert!((mean - 0.5 * (0.0188 + 0.0142)).abs() < 1e-9, "carried δ {mean}");
     assert!(v["validation"]["mean_position_error_m"].as_f64().expect("Ē_p") < 1e-6, "{}", v["validation"]);
     let yaml = std::fs::read_to_string(&params).expect("params");
-    assert!(yaml.contains("heading_offset_per_drive: \"drive 1: 1.88"), "{yaml}");
+    // Each drive's offset in full (shortest round-trip form).
+    let per_line = yaml.lines().find_map(|l| l.trim().strip_prefix("heading_offset_per_drive: \"")).expect("per drive");
+    for (k, entry) in per_line.trim_end_matches('"').split("; ").enumerate() {
+        let value = entry.strip_prefix(&format!("drive {}: ", k + 1)).and_then(|e| e.split(" ± ").next());
+        let want = per[k]["value"].as_f64().expect("δ");
+        assert_eq!(value.and_then(|x| x.parse::<f64>().ok()).map(f64::to_bits), Some(want.to_bits()), "{yaml}");
+    }
     let text = stdout(&odocal(&args));
     assert!(text.contains("heading offset per drive") && text.contains("drive 2: δ = 14.2000 mrad"), "{text}");
     // The HTML report lists them too, under their mean.
@@ -227,8 +290,8 @@ fn max_diff(a: &[f64], b: &[f64]) -> f64 {
 
 /// `compensate --theta FILE` applies the file's reference extrinsics as
 /// `validate` does: on a drive whose reference is turned by 18.8 mrad, the
-/// file's heading offset (carried, or re-estimated on the drive) gives
-/// the wheels compensated on the same drive recorded at the axle; so does
+/// file's heading offset (carried, or held as the calibration's own on
+/// its own drive) gives the wheels compensated on the same drive recorded at the axle; so does
 /// the bare θ, whose drive's heading offset is re-estimated from 0, and
 /// with it held at 0 it does not.
 #[test]
@@ -252,11 +315,14 @@ fn compensation_applies_the_parameter_file_s_extrinsics() {
     assert!(text.contains("heading offset re-estimated on this drive: 18.8 mrad (from 0: neither"), "{text}");
     let (carried, text) = compensated(&turned, p, &["--carry-heading-offset"], &out);
     assert!(text.contains(&format!("heading offset = 18.8000 mrad ({p})")), "{text}");
+    // The file's own drive: its calibration's offset for it, held.
     let (refitted, text) = compensated(&turned, p, &[], &out);
-    assert!(text.contains("heading offset re-estimated on this drive: 18.8 mrad"), "{text}");
+    assert!(text.contains("heading offset held at 18.8 mrad, the calibration's own estimate for this drive"), "{text}");
     let off = max_diff(&bare, &at_axle);
     assert!(off > 1e-3, "the bare θ on the turned drive: {off} rev/s from the axle's");
-    for (name, got) in [("carried", &carried), ("re-estimated", &refitted), ("bare, re-estimated", &bare_refitted)] {
+    for (name, got) in
+        [("carried", &carried), ("its own drive's, held", &refitted), ("bare, re-estimated", &bare_refitted)]
+    {
         let diff = max_diff(got, &at_axle);
         // Equal to round-off (2e-14 and 7e-14 rev/s measured; the bare θ 0.032).
         assert!(diff < 1e-9, "{name}: {diff} rev/s from the axle's (bare θ: {off})");

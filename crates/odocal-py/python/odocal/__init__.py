@@ -506,8 +506,10 @@ def validate(
     held where the calibration estimated one or ``theta`` is numbers, starting from the
     calibration's estimate, else the drive's manifest value, else 0 (``heading_offset_fit``: ``value``, ``calibration`` — the start —,
     ``std_dev`` in rad — cluster-robust when ``robust`` —, ``segments``) unless
-    ``carry_heading_offset=True``, which holds that start (on the calibration's own drive
-    that gives its own Ē_p).
+    ``carry_heading_offset=True``, which holds that start. On a drive the report's or the
+    file's calibration ran on (the same drive fingerprint) the calibration's own heading offset
+    for that drive is held instead (``calibration_drive``: ``True``), so Ē_p is the
+    calibration's own.
     ``params_node`` names the node of a parameter file that holds several nodes'
     parameters (such a file is refused without it). A ``UserWarning`` says when the
     report's or the file's wheel scale (what c_e, c_d and d are per) is not the drive's.

@@ -41,6 +41,16 @@ pub struct ValidateOptions {
     /// ([`ValidateOptions::set_extrinsics`]). Default false (δ as given).
     #[serde(default)]
     pub reestimate_heading_offset: bool,
+    /// The heading offset a parameter file's calibration estimated for each
+    /// drive it ran on, rad, by the drive's
+    /// [`Drive::fingerprint`](crate::Drive::fingerprint)
+    /// ([`ValidateOptions::set_extrinsics`] fills it). On one of those
+    /// drives [`validate`](crate::validate()) holds that estimate instead
+    /// of re-estimating the offset: it is this drive's own, fitted with the
+    /// calibration, so θ is judged there as the calibration judged it
+    /// ([`ValidateReport::calibration_drive`]). Default none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub calibration_heading_offsets: Vec<(String, f64)>,
     /// Also fit θ on the drive itself and judge the given θ against that
     /// fit ([`ValidateReport::drive_fit`]): two batch G-N calibrations of
     /// the drive, and one by the default method where their fit fails, is
@@ -61,6 +71,7 @@ impl Default for ValidateOptions {
             reachable: None,
             extrinsics: Extrinsics::default(),
             reestimate_heading_offset: false,
+            calibration_heading_offsets: Vec::new(),
             fit_drive: true,
         }
     }
@@ -78,7 +89,9 @@ impl ValidateOptions {
     /// holds it as given, or the file's calibration held it (as it would on
     /// this drive): the reference's heading bias changes from drive to drive,
     /// so a calibration's estimate is no value for another drive, and a θ
-    /// without a file says nothing of it. Returns the names of the
+    /// without a file says nothing of it. On a drive the file's calibration
+    /// ran on, its estimate for that drive is held instead
+    /// ([`Self::calibration_heading_offsets`]). Returns the names of the
     /// extrinsics taken from the file.
     ///
     /// ```
@@ -107,6 +120,7 @@ impl ValidateOptions {
         carry_heading_offset: bool,
     ) -> Vec<&'static str> {
         self.reestimate_heading_offset = !carry_heading_offset && file.is_none_or(ParamFile::estimated_heading_offset);
+        self.calibration_heading_offsets = file.map(ParamFile::drive_heading_offsets).unwrap_or_default();
         if let Some(x) = drive_reference {
             self.extrinsics = *x;
         }
@@ -136,11 +150,21 @@ pub struct ValidateReport {
     pub heading_offset_fit: Option<HeadingOffsetFit>,
     /// θ fitted on this drive and the verdict on the given θ, when asked
     /// ([`ValidateOptions::fit_drive`]) and the drive could be fitted.
+    /// On a drive the θ's calibration ran on
+    /// ([`ValidateReport::calibration_drive`]) the fit holds that
+    /// calibration's heading offset.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drive_fit: Option<DriveFit>,
     /// Why the drive could not be fitted, when it was asked to be.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drive_fit_error: Option<String>,
+    /// The drive is one the θ's calibration ran on (its fingerprint is in
+    /// [`ValidateOptions::calibration_heading_offsets`]) and the heading
+    /// offset would have been re-estimated: `extrinsics` holds the
+    /// calibration's own estimate for this drive instead, so Ē_p is the
+    /// calibration's own validation of it. In JSON only when true.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub calibration_drive: bool,
 }
 
 /// How much more Ē_p a θ that fits a drive may give than the drive's own
@@ -289,6 +313,7 @@ pub(crate) fn validate_theta(
         heading_offset_fit,
         drive_fit: None,
         drive_fit_error: None,
+        calibration_drive: false,
     })
 }
 

@@ -11,6 +11,7 @@ use crate::assess::validate::{
 use crate::drive::Drive;
 use crate::error::Result;
 use crate::identify::IdentifyOptions;
+use crate::model::extrinsics::Extrinsics;
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 use crate::progress::ProgressFn;
@@ -60,7 +61,17 @@ pub fn validate(
     opts: &ValidateOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ValidateReport> {
+    let own = own_heading_offset(drive, opts);
+    let opts = &match own {
+        Some(delta) => ValidateOptions {
+            extrinsics: Extrinsics { heading_offset: delta, ..opts.extrinsics },
+            reestimate_heading_offset: false,
+            ..opts.clone()
+        },
+        None => opts.clone(),
+    };
     let mut report = validate_theta(drive, theta, opts, progress)?;
+    report.calibration_drive = own.is_some();
     if opts.fit_drive {
         match drive_fit(drive, theta, opts, report.validation.mean_position_error_m) {
             Ok(fit) => report.drive_fit = Some(fit),
@@ -68,6 +79,17 @@ pub fn validate(
         }
     }
     Ok(report)
+}
+
+/// The heading offset the θ's calibration estimated for `drive`, when
+/// validation would re-estimate the drive's own and the drive is one that
+/// calibration ran on ([`ValidateOptions::calibration_heading_offsets`]).
+fn own_heading_offset(drive: &Drive, opts: &ValidateOptions) -> Option<f64> {
+    if !opts.reestimate_heading_offset || opts.calibration_heading_offsets.is_empty() {
+        return None;
+    }
+    let print = drive.fingerprint();
+    opts.calibration_heading_offsets.iter().find(|(p, _)| *p == print).map(|(_, delta)| *delta)
 }
 
 /// θ fitted on `drive`, judged against `given_m`, Ē_p of θ: batch

@@ -37,9 +37,10 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::model::extrinsics::Extrinsics;
-use crate::model::param::{Param, ParamSet};
+use crate::model::param::ParamSet;
 use crate::model::{Theta, THETA_NAMES};
+
+mod extrinsics;
 
 /// Onto which consumer's keys the parameters are also written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -189,7 +190,7 @@ impl ParamFile {
             let per: Vec<String> = x
                 .per_drive
                 .iter()
-                .map(|p| format!("drive {}: {:.6e} ± {:.1e} rad", p.drive + 1, p.value, p.result_std_dev()))
+                .map(|p| format!("drive {}: {:e} ± {:.1e} rad", p.drive + 1, p.value, p.result_std_dev()))
                 .collect();
             self.provenance.push(("heading_offset_per_drive".into(), per.join("; ")));
             if let Some(e) = self.params.iter_mut().find(|e| e.name == "heading_offset") {
@@ -546,49 +547,6 @@ impl ParamFile {
         let theta = Theta::from_array(v);
         crate::model::limits::check_theta(&theta)?;
         Ok(theta)
-    }
-
-    /// The reference extrinsics the file holds (0 for those it lacks) and
-    /// which of them carry a σ, i.e. were estimated by the calibration that
-    /// wrote it.
-    pub(crate) fn extrinsics(&self) -> (Extrinsics, ParamSet) {
-        let mut v = [0.0; 3];
-        let mut estimated = ParamSet::EMPTY;
-        for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
-            if let Some(e) = self.params.iter().find(|e| e.name == p.name()) {
-                v[i] = e.value;
-                if e.sigma.is_some() {
-                    estimated.insert(p);
-                }
-            }
-        }
-        (Extrinsics::from_array(v), estimated)
-    }
-
-    /// True when the calibration estimated the reference's heading offset
-    /// (it has a σ): validation then re-estimates each drive's own
-    /// ([`crate::ValidateOptions::set_extrinsics`]) unless told to carry it.
-    pub(crate) fn estimated_heading_offset(&self) -> bool {
-        self.extrinsics().1.contains(Param::HeadingOffset)
-    }
-
-    /// The reference extrinsics to validate this file's θ with on a drive,
-    /// by the rules of docs/guide.md, "Several drives of one vehicle": one the calibration estimated
-    /// (it has a σ) is the sensor's, so it holds for every drive of the
-    /// vehicle; a held one gives way to what the drive's own manifest states
-    /// (`drive_reference`, its `[reference]`), else the file's value. Also
-    /// returns the names of those taken from the file.
-    pub(crate) fn extrinsics_for_drive(&self, drive_reference: Option<&Extrinsics>) -> (Extrinsics, Vec<&'static str>) {
-        let (file, estimated) = self.extrinsics();
-        let (file, mut v) = (file.to_array(), drive_reference.copied().unwrap_or(Extrinsics::ZERO).to_array());
-        let mut from_file = Vec::new();
-        for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
-            if estimated.contains(p) || drive_reference.is_none() {
-                v[i] = file[i];
-                from_file.push(p.name());
-            }
-        }
-        (Extrinsics::from_array(v), from_file)
     }
 
     /// Builds the file from the flat key–value map of one node.
@@ -974,6 +932,8 @@ fn civil_from_days(z: i64) -> (i64, u32, u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::extrinsics::Extrinsics;
+    use crate::model::param::Param;
 
     #[test]
     fn a_node_ros_2_cannot_load_is_not_written() {
@@ -1191,6 +1151,61 @@ mod tests {
         assert_eq!(p["heading_offset"].as_f64(), Some(-0.0099), "{j}");
         assert_eq!(p["heading_offset_held"], serde_json::json!(true), "{j}");
         assert_eq!(j["units"]["heading_offset"], "rad", "{j}");
+    }
+
+    /// Each calibration drive's heading offset by its fingerprint: the
+    /// file's own for one drive, each drive's own from the per-drive list
+    /// (written and read back) for several, none where the calibration held
+    /// the offset or the lists do not pair up.
+    #[test]
+    fn drive_heading_offsets_pair_fingerprints_with_offsets() {
+        use crate::model::extrinsics::{DriveHeadingOffset, Extrinsics, ExtrinsicsEstimate};
+        let estimate = |delta: f64| ExtrinsicsEstimate {
+            value: Extrinsics { heading_offset: delta, ..Extrinsics::ZERO },
+            std_dev: Extrinsics { heading_offset: 1e-4, ..Extrinsics::ZERO },
+            free: ParamSet::EMPTY.with(Param::HeadingOffset),
+            ..ExtrinsicsEstimate::held(Extrinsics::ZERO)
+        };
+        let fingerprint = |f: &mut ParamFile, v: &str| f.provenance.push(("fingerprint".into(), v.into()));
+        let mut one = sample();
+        one.add_extrinsics(&estimate(0.0188));
+        assert!(one.drive_heading_offsets().is_empty(), "no fingerprint");
+        fingerprint(&mut one, "aa");
+        assert_eq!(one.drive_heading_offsets(), [("aa".to_string(), 0.0188)]);
+        let mut held = sample();
+        held.add_extrinsics(&ExtrinsicsEstimate::held(Extrinsics { heading_offset: 0.0188, ..Extrinsics::ZERO }));
+        fingerprint(&mut held, "aa");
+        assert!(held.drive_heading_offsets().is_empty(), "the calibration held δ");
+
+        let deltas = [0.018799999999998464, -0.01419999999999986];
+        let mut joint = estimate(0.5 * (deltas[0] + deltas[1]));
+        joint.per_drive = deltas
+            .iter()
+            .enumerate()
+            .map(|(drive, &value)| DriveHeadingOffset { drive, value, std_dev: 1e-4, robust_std_dev: None })
+            .collect();
+        let mut two = sample();
+        two.add_extrinsics(&joint);
+        fingerprint(&mut two, "aa, bb");
+        let want = vec![("aa".to_string(), deltas[0]), ("bb".to_string(), deltas[1])];
+        assert_eq!(two.drive_heading_offsets(), want);
+        let back = read_text("p.yaml", &two.to_ros2_yaml()).expect("read back");
+        assert_eq!(back.drive_heading_offsets(), want, "to the bit through the file");
+        let mut three = two.clone();
+        three.provenance.retain(|(k, _)| k != "fingerprint");
+        fingerprint(&mut three, "aa, bb, cc");
+        assert!(three.drive_heading_offsets().is_empty(), "three fingerprints, two offsets");
+        for bad in
+            ["drive 1: x ± 1 rad; drive 2: 1e-2 ± 1 rad", "drive 3: 1e-2 ± 1 rad; drive 1: 1e-2 ± 1 rad", "garbage"]
+        {
+            let mut f = two.clone();
+            for (k, v) in &mut f.provenance {
+                if k == "heading_offset_per_drive" {
+                    *v = bad.into();
+                }
+            }
+            assert!(f.drive_heading_offsets().is_empty(), "{bad}");
+        }
     }
 
     /// Every value under `ros__parameters` as ROS 2 types it: a list, a
