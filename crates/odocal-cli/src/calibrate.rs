@@ -15,7 +15,7 @@ use odocal::{
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs, ThetaArg};
 use crate::io::{drive_entry, json_text, load_drive_with_scale, load_truth, print_warnings, truth_of};
-use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_texts, Files};
+use crate::output::{refuse_foreign_sidecar, refuse_sidecar_onto_drive, refuse_stdout, write_texts, Files};
 use crate::progress::Bars;
 use crate::simulate::sim_options;
 use crate::Outcome;
@@ -135,6 +135,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
     if let Some(p) = &a.out {
         refuse_stdout("--out", p, "the demo writes the drive's sidecar beside it")?;
         refuse_sidecar_onto_drive("--out", p)?;
+        refuse_foreign_sidecar("--out", p)?;
     }
     files.output("--out", a.out.as_deref());
     files.output(

@@ -192,6 +192,22 @@ pub fn refuse_sidecar_onto_drive(role: &str, path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Refuses to write a simulated drive's sidecar beside `csv` (the drive
+/// `role` names) over a file that is not a simulator sidecar: the user
+/// named the CSV, not the JSON beside it, which may be anything (a
+/// calibration's report, say). An older sidecar is replaced, as its CSV is.
+pub fn refuse_foreign_sidecar(role: &str, csv: &Path) -> Result<()> {
+    let side = odocal::sim::SimSidecar::path_beside(csv);
+    if side.exists() && odocal::sim::SimSidecar::file_beside(csv).is_none() {
+        bail!(
+            "{}: the drive's sidecar (the truth) is written here, beside {role} under its name with .json, and this \
+             file is not a simulator sidecar; move it away or give {role} another name",
+            side.display()
+        );
+    }
+    Ok(())
+}
+
 /// Writes `text` to `path` atomically, or to stdout for `-`; it ends with
 /// a newline either way.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {

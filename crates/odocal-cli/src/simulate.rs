@@ -7,7 +7,7 @@ use clap::Args;
 use odocal::sim::{self, CdStep, NoiseOptions, SimOptions};
 
 use crate::args::ThetaArg;
-use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, Files};
+use crate::output::{refuse_foreign_sidecar, refuse_sidecar_onto_drive, refuse_stdout, Files};
 use crate::progress::Bars;
 
 /// Arguments of `odocal simulate`.
@@ -20,7 +20,9 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 24.0, allow_hyphen_values = true, value_parser = route_length_km)]
     length_km: f64,
     /// Output CSV; the sidecar JSON (the truth, bound to the CSV by its
-    /// fingerprint) is written beside it, with the extension .json.
+    /// fingerprint) is written beside it, with the extension .json (a file
+    /// there that is not a simulator sidecar is left alone: the run is
+    /// refused).
     #[arg(long)]
     out: PathBuf,
     /// Noise preset: paper, off, white (white wheel noise only), high, or
@@ -143,6 +145,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     }
     files.output("--out", Some(&a.out)).output("the sidecar beside --out (its name with .json)", Some(&side));
     files.check()?;
+    refuse_foreign_sidecar("--out", &a.out)?;
     let mut o = sim_options(a.seed, a.length_km, &a.noise)?;
     if let Some(t) = &a.theta {
         o.theta_true = t.theta;

@@ -522,7 +522,9 @@ impl PyDrive {
     /// Writes the canonical CSV; for a simulated drive also the sidecar
     /// (`drive.json` beside `drive.csv`), as `odocal simulate` does. Both
     /// are written atomically; a path that is one of the drive's own files
-    /// (its CSV, manifest, stream files, sidecar) is refused.
+    /// (its CSV, manifest, stream files, sidecar) is refused, and so is a
+    /// file beside `path` under the sidecar's name that is not a simulator
+    /// sidecar.
     fn to_csv(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         let side = odocal::sim::SimSidecar::path_beside(&path);
         let mut outputs = vec![("to_csv(path)", path.as_path())];
@@ -535,6 +537,14 @@ impl PyDrive {
                 )));
             }
             outputs.push(("the sidecar to_csv writes beside path", side.as_path()));
+            // The caller named the CSV, not the JSON beside it, which may be anything.
+            if side.exists() && odocal::sim::SimSidecar::file_beside(&path).is_none() {
+                return Err(crate::OdocalError::new_err(format!(
+                    "{}: to_csv writes the simulated drive's sidecar (the truth) here, beside path under its name \
+                     with .json, and this file is not a simulator sidecar; move it away or give path another name",
+                    side.display()
+                )));
+            }
         }
         check_outputs(&[&self.prov], &outputs)?;
         let drive = Arc::clone(&self.drive);

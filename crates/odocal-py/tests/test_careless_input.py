@@ -49,6 +49,22 @@ def test_a_drive_read_by_a_relative_path_keeps_its_files_safe_after_chdir(tmp_pa
     assert (elsewhere / "drive.csv").exists()
 
 
+def test_to_csv_leaves_a_json_beside_path_that_is_no_sidecar(tmp_path):
+    """A simulated drive's sidecar goes beside the CSV under its name with .json: a file there
+    that is not a simulator sidecar is left alone; an older sidecar is replaced."""
+    drive = odocal.simulate(seed=1, length_km=1.0)
+    side = tmp_path / "run.json"
+    side.write_text('{"validation": {"mean_position_error_m": 1.0}}\n')
+    with pytest.raises(odocal.OdocalError, match="is not a simulator sidecar"):
+        drive.to_csv(tmp_path / "run.csv")
+    assert side.read_text() == '{"validation": {"mean_position_error_m": 1.0}}\n'
+    assert not (tmp_path / "run.csv").exists()
+    side.unlink()
+    drive.to_csv(tmp_path / "run.csv")
+    odocal.simulate(seed=2, length_km=1.0).to_csv(tmp_path / "run.csv")
+    assert '"seed": 2' in side.read_text()
+
+
 def test_masked_arrays_with_masked_values_are_refused(small_drive):
     t, px, py, psi, n_rl, n_rr, beta, a_y = small_drive.to_numpy().T
     holes = np.ma.masked_where((t > 5) & (t < 6), px)

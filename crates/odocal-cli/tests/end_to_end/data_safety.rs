@@ -74,6 +74,29 @@ fn simulate_out_onto_its_own_sidecar_is_refused() {
     refused(&["simulate", "--out", "-"], &["--out -", "sidecar"]);
 }
 
+/// The sidecar is written beside `--out` under its name with .json: a file
+/// there that is not a simulator sidecar (a calibration's report, say) is
+/// left alone and the run (`simulate`, `demo`) refused before any work; an older sidecar is
+/// replaced, as its CSV is.
+#[test]
+fn simulate_leaves_a_json_beside_out_that_is_no_sidecar() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (out, side) = (dir.path().join("run.csv"), dir.path().join("run.json"));
+    std::fs::write(&side, "{\"validation\": {\"mean_position_error_m\": 1.0}}\n").expect("write");
+    let before = read(&side);
+    refused(&["simulate", "--length-km", "1", "--out", s(&out)], &["run.json", "is not a simulator sidecar"]);
+    refused(&["demo", "--length-km", "1", "--out", s(&out)], &["run.json", "beside --out"]);
+    assert_eq!(read(&side), before, "the JSON was changed");
+    assert!(!out.exists(), "the CSV was written though the run was refused");
+    std::fs::remove_file(&side).expect("remove");
+    for seed in ["1", "2"] {
+        let o = odocal(&["simulate", "--length-km", "1", "--seed", seed, "--out", s(&out)]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let truth: serde_json::Value = serde_json::from_slice(&read(&side)).expect("sidecar");
+    assert_eq!(truth["settings"]["seed"], serde_json::json!(2), "the second run's sidecar");
+}
+
 #[test]
 fn calibrate_and_validate_outputs_onto_their_inputs_are_refused() {
     let dir = tempfile::tempdir().expect("tmp");
