@@ -49,7 +49,7 @@
 //! # fn main() -> Result<(), odocal::Error> {
 //! use odocal::settings::{Caller, ManifestSettings, Settings};
 //! let manifest = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
-//! let (drive, import_report) = odocal::load_drive(manifest.as_ref())?;
+//! let (drive, import_report) = odocal::load_drive(manifest)?;
 //! // None for a drive CSV: the defaults.
 //! let manifests: Vec<ManifestSettings> =
 //!     import_report.as_ref().map(ManifestSettings::try_from).transpose()?.into_iter().collect();

@@ -263,7 +263,8 @@ pub fn remove_temporary_files() {
 /// # Errors
 /// [`Error::Io`] naming `path`: the folder cannot be written, `path` is a
 /// directory, or the write, the flush, the sync or the rename failed.
-pub fn write_text(path: &Path, text: &str) -> Result<()> {
+pub fn write_text(path: impl AsRef<Path>, text: &str) -> Result<()> {
+    let path = path.as_ref();
     write_atomically(path, |w| write_with_newline(w, text))
 }
 

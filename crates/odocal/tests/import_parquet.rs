@@ -20,7 +20,7 @@ fn data(rel: &str) -> PathBuf {
 }
 
 fn manifest(rel: &str) -> Manifest {
-    Manifest::from_path(&data(rel)).expect("manifest")
+    Manifest::from_path(data(rel)).expect("manifest")
 }
 
 #[cfg(feature = "parquet")]

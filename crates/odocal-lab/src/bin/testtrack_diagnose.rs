@@ -44,7 +44,7 @@ fn run() -> Res<()> {
         None => testtrack_runs()?.into_iter().map(|(_, d)| d).collect(),
         Some(dir) => TESTTRACK_RUNS
             .iter()
-            .map(|(run, _)| Ok(odocal::load_drive(&dir.join(format!("run-{run}.toml")))?.0))
+            .map(|(run, _)| Ok(odocal::load_drive(dir.join(format!("run-{run}.toml")))?.0))
             .collect::<Res<_>>()?,
     };
     for k in ks {

@@ -509,7 +509,8 @@ impl ParamFile {
     /// or not a number, a physically absurd θ); when `node` is not in the
     /// file, or when it is `None` and several nodes (or YAML documents)
     /// hold odocal's parameters.
-    pub fn read(path: &Path, node: Option<&str>) -> Result<ParamFile> {
+    pub fn read(path: impl AsRef<Path>, node: Option<&str>) -> Result<ParamFile> {
+        let path = path.as_ref();
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
         let Some(format) = FileFormat::of(path) else {
             return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));

@@ -25,8 +25,8 @@ impl SimSidecar {
     /// Writes the sidecar as pretty JSON beside `drive_csv`
     /// ([`SimSidecar::path_beside`]), atomically
     /// ([`crate::output::write_text`]).
-    pub fn write_beside(&self, drive_csv: &Path) -> Result<()> {
-        self.write_json(&Self::path_beside(drive_csv))
+    pub fn write_beside(&self, drive_csv: impl AsRef<Path>) -> Result<()> {
+        self.write_json(&Self::path_beside(drive_csv.as_ref()))
     }
 
     /// The simulator sidecar beside `drive_csv`, checked against `drive`

@@ -121,7 +121,7 @@ fn slice_has_the_documented_topics_and_counts() {
 
 #[test]
 fn slice_inspect_output() {
-    let info = bag::inspect(&fixture("drive-slice.mcap")).expect("inspect");
+    let info = bag::inspect(fixture("drive-slice.mcap")).expect("inspect");
     let want = "\
 Files:             drive-slice.mcap
 Bag size:          932.1 KiB
@@ -213,7 +213,7 @@ fn full_bag_matches_the_fixture_csv_rows() {
 fn slice_draft_manifest_imports() {
     let dir = tempfile::tempdir().expect("tempdir");
     std::fs::copy(fixture("drive-slice.mcap"), dir.path().join("bag.mcap")).expect("copy");
-    let text = bag::inspect(&dir.path().join("bag.mcap")).and_then(|i| i.draft_manifest("bag.mcap")).expect("draft");
+    let text = bag::inspect(dir.path().join("bag.mcap")).and_then(|i| i.draft_manifest("bag.mcap")).expect("draft");
     for want in [
         "topic = \"/vehicle/wheel_joint_states\"",
         "signal = \"rad_cumulative\"",

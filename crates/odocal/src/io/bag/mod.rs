@@ -143,7 +143,8 @@ pub enum TimeSource {
 /// [`Error::BagColumn`], [`Error::BagJoint`], [`Error::BagSqlite`], and
 /// [`Error::Bag`] for a file that is not MCAP, is corrupt or truncated, a
 /// topic without messages, or a message that does not decode.
-pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) -> Result<Table> {
+pub fn read_topic(path: impl AsRef<Path>, topic: &str, columns: &[&str], time: TimeSource) -> Result<Table> {
+    let path = path.as_ref();
     read(path, topic, columns, time, false)
 }
 
@@ -340,7 +341,8 @@ impl TopicInfo {
 /// # Errors
 /// [`Error::BagSqlite`] for a `.db3` bag, [`Error::Bag`] for a file that is
 /// not MCAP or is corrupt or truncated.
-pub fn inspect(path: &Path) -> Result<BagInfo> {
+pub fn inspect(path: impl AsRef<Path>) -> Result<BagInfo> {
+    let path = path.as_ref();
     let mut bag = Bag::open(path)?;
     let (profile, library) = bag.header()?;
     let summary = bag.summary();

@@ -768,7 +768,8 @@ fn looks_like_csv(text: &str) -> bool {
 
 impl Manifest {
     /// Reads and checks a manifest file.
-    pub fn from_path(path: &Path) -> Result<Manifest> {
+    pub fn from_path(path: impl AsRef<Path>) -> Result<Manifest> {
+        let path = path.as_ref();
         let csv_name = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("csv"));
         if csv_name {
             return Err(Error::Manifest { path: path.to_path_buf(), reason: CSV_NOT_MANIFEST.into() });

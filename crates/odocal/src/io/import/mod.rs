@@ -288,12 +288,13 @@ pub fn is_manifest_path(path: &Path) -> bool {
 /// # fn main() -> Result<(), odocal::Error> {
 /// // A 60 s slice of a comma2k19 drive that the crate's tests ship.
 /// let manifest = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
-/// let (drive, report) = odocal::load_drive(manifest.as_ref())?;
+/// let (drive, report) = odocal::load_drive(manifest)?;
 /// assert!(drive.len() > 0);
 /// assert!(report.is_some(), "a manifest comes with its import report");
 /// # Ok(()) }
 /// ```
-pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
+pub fn load_drive(path: impl AsRef<Path>) -> Result<(Drive, Option<ImportReport>)> {
+    let path = path.as_ref();
     if is_manifest_path(path) {
         let m = Manifest::from_path(path)?;
         let ImportedDrive { drive, report } = import_drive(&m)?;
@@ -346,7 +347,7 @@ pub fn wheel_scale_mismatch(first: &mut Option<(String, String)>, name: &str, sc
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{import, Manifest};
 /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
-/// let manifest = Manifest::from_path(path.as_ref())?;
+/// let manifest = Manifest::from_path(path)?;
 /// let (drive, report) = import(&manifest)?;
 /// println!("{report}"); // what was read, estimated, split and dropped
 /// assert!(drive.len() > 0);

@@ -307,7 +307,7 @@ fn error_of(dir: &Path, edit: impl Fn(String) -> String) -> String {
 #[test]
 fn small_case_imports_and_derives_heading() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let (d, r) = load_drive(&small_case(dir.path())).expect("import");
+    let (d, r) = load_drive(small_case(dir.path())).expect("import");
     assert_eq!(d.parts().len(), 1);
     assert!(d.psi().iter().all(|p| p.abs() < 1e-9), "heading along +x is 0");
     assert!(d.n_rl().iter().all(|n| (n - 5.0).abs() < 1e-9));
@@ -459,7 +459,7 @@ fn noisy_walk(dir: &Path, pose: &str) -> PathBuf {
 #[test]
 fn a_noisy_track_gives_a_derived_heading_that_passes_the_check() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let (d, _) = load_drive(&noisy_walk(dir.path(), "")).expect("the default chord");
+    let (d, _) = load_drive(noisy_walk(dir.path(), "")).expect("the default chord");
     let psi = &d.measured().psi;
     let rms = (psi.iter().map(|p| p * p).sum::<f64>() / psi.len() as f64).sqrt();
     assert!(rms < 0.02, "heading error RMS {rms} rad");
@@ -754,7 +754,7 @@ fn data(name: &str) -> PathBuf {
 
 #[test]
 fn van_slice_imports() {
-    let (d, r) = load_drive(&data("psu-mapping-van")).expect("van slice");
+    let (d, r) = load_drive(data("psu-mapping-van")).expect("van slice");
     let r = r.expect("report");
     // Two RTK-fixed losses in the slice split it.
     assert!(d.parts().len() >= 2 && r.gaps.iter().any(|g| g.reasons[0].contains("both_fix6")), "{r}");
@@ -803,7 +803,7 @@ fn van_raw_counters_match_cumulative_columns() {
 
 #[test]
 fn rav4_slice_imports() {
-    let (d, r) = load_drive(&data("comma2k19-rav4")).expect("rav4 slice");
+    let (d, r) = load_drive(data("comma2k19-rav4")).expect("rav4 slice");
     let r = r.expect("report");
     assert_eq!(d.parts().len(), 1, "{r}");
     assert!((18.0..20.5).contains(&r.duration_s), "{r}");
@@ -1315,16 +1315,16 @@ fn the_bank_turns_the_kinematic_a_y_into_the_lateral_specific_force() {
     let dir = tempfile::tempdir().expect("tempdir");
     // Straight (kinematic a_y = 0) on a road 0.1 m lower on the left over 1.5 m.
     let phi = (0.1_f64 / 1.5).asin();
-    let (d, r) = load_drive(&bank_case(dir.path(), |_| phi, 0.0, |_| false, "")).expect("import");
+    let (d, r) = load_drive(bank_case(dir.path(), |_| phi, 0.0, |_| false, "")).expect("import");
     let want = -crate::io::import::bank::G_M_PER_S2 * 0.1 / 1.5;
     assert!(d.a_y().iter().all(|a| (a - want).abs() < 1e-4), "{:?} vs {want}", &d.a_y()[..3]);
     let r = r.expect("report");
     assert!(r.lateral_acceleration.contains("roll φ from the antennas 'gl' (left) and 'gr' (right)"), "{r}");
     assert!(r.lateral_acceleration.contains("mean φ +66.7 mrad"), "{}", r.lateral_acceleration);
     // Level, the left antenna mounted 0.1 m higher: a roll unless the offset is given.
-    let (d, _) = load_drive(&bank_case(dir.path(), |_| 0.0, 0.1, |_| false, "")).expect("mounted");
+    let (d, _) = load_drive(bank_case(dir.path(), |_| 0.0, 0.1, |_| false, "")).expect("mounted");
     assert!(d.a_y().iter().all(|a| (a + want).abs() < 1e-4), "{:?}", &d.a_y()[..3]);
-    let (d, _) = load_drive(&bank_case(dir.path(), |_| 0.0, 0.1, |_| false, "height_offset_m = 0.1")).expect("offset");
+    let (d, _) = load_drive(bank_case(dir.path(), |_| 0.0, 0.1, |_| false, "height_offset_m = 0.1")).expect("offset");
     assert!(d.a_y().iter().all(|a| a.abs() < 1e-4), "{:?}", &d.a_y()[..3]);
     // Without the bank table: the kinematic a_y, 0.
     let path = bank_case(dir.path(), |_| phi, 0.0, |_| false, "");

@@ -413,7 +413,7 @@ mod tests {
     #[test]
     fn a_stamp_that_jumps_ahead_is_named_on_its_own_line() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let m = Manifest::from_path(&crate::io::import::tests::small_case(dir.path())).expect("manifest");
+        let m = Manifest::from_path(crate::io::import::tests::small_case(dir.path())).expect("manifest");
         let run = |stamps: &[f64]| {
             let mut c = Conditioner::new(&m, "pose", &[]);
             for (k, t) in stamps.iter().enumerate() {

@@ -134,7 +134,7 @@ pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
 /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
 /// use odocal::io::RawStream;
 /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
-/// let manifest = odocal::Manifest::from_path(path.as_ref())?;
+/// let manifest = odocal::Manifest::from_path(path)?;
 /// let mut raw = RawStream::new(&manifest, None)?;
 /// // Each stream's file row by row, as a live system would send its messages.
 /// let streams: Vec<(String, Option<String>, Vec<String>)> =
