@@ -172,7 +172,8 @@ impl std::fmt::Display for EivWarning {
                 write!(f, "filter diverged in window {window}: NIS/dof {nis:.2} > {threshold}")
             }
             EivWarning::InconsistentInnovations { window, nis, band } => {
-                write!(f, "window {window}: NIS/dof {nis:.2} outside [{}, {}]", band[0], band[1])
+                // Three decimals: a NIS just outside its band must not read as on its edge.
+                write!(f, "window {window}: NIS/dof {nis:.3} outside [{:.3}, {:.3}]", band[0], band[1])
             }
             EivWarning::CorrelatedInnovations { window, component, lag1, expected, threshold } => {
                 if *expected == 0.0 {

@@ -65,3 +65,10 @@ fn innovation_checks_flag_an_unmodelled_reference_lever_arm() {
         .collect();
     assert!(flagged.len() >= r.windows.len(), "{r}");
 }
+
+/// A NIS just below its band reads as below it, not as on its edge.
+#[test]
+fn a_nis_outside_its_band_is_printed_so_it_reads_outside() {
+    let w = EivWarning::InconsistentInnovations { window: 2, nis: 0.3934, band: [0.39715292567343624, 2.0] };
+    assert_eq!(w.to_string(), "window 2: NIS/dof 0.393 outside [0.397, 2.000]");
+}
