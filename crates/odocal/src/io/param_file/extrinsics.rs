@@ -39,7 +39,8 @@ impl ParamFile {
     /// several drives' are each their own from `heading_offset_per_drive`
     /// (`drive K: δ ± σ rad; ...`). Empty when the calibration did not
     /// estimate the offset, the file names no fingerprint, or the two
-    /// lists do not pair up.
+    /// lists do not pair up (an entry that cannot be read, or a value
+    /// beyond ±π rad, pairs with nothing).
     pub(crate) fn drive_heading_offsets(&self) -> Vec<(String, f64)> {
         let (x, estimated) = self.extrinsics();
         let provenance = |key: &str| self.provenance.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str());
@@ -58,7 +59,10 @@ impl ParamFile {
                             Some((k.trim().parse::<usize>().ok()?, value))
                         });
                     match parsed {
-                        Some((k, v)) if (1..=values.len()).contains(&k) && v.is_finite() => values[k - 1] = Some(v),
+                        // Within ±π, as the file's own heading offset must be.
+                        Some((k, v)) if (1..=values.len()).contains(&k) && v.abs() <= std::f64::consts::PI => {
+                            values[k - 1] = Some(v)
+                        }
                         _ => return Vec::new(),
                     }
                 }
