@@ -1196,9 +1196,13 @@ mod tests {
         three.provenance.retain(|(k, _)| k != "fingerprint");
         fingerprint(&mut three, "aa, bb, cc");
         assert!(three.drive_heading_offsets().is_empty(), "three fingerprints, two offsets");
-        for bad in
-            ["drive 1: x ± 1 rad; drive 2: 1e-2 ± 1 rad", "drive 3: 1e-2 ± 1 rad; drive 1: 1e-2 ± 1 rad", "garbage"]
-        {
+        for bad in [
+            "drive 1: x ± 1 rad; drive 2: 1e-2 ± 1 rad",
+            "drive 3: 1e-2 ± 1 rad; drive 1: 1e-2 ± 1 rad",
+            "drive 1: 1e-2 ± 1 rad; drive 2: 4 ± 1 rad",
+            "drive 1: 1e-2 ± 1 rad; drive 2: NaN ± 1 rad",
+            "garbage",
+        ] {
             let mut f = two.clone();
             for (k, v) in &mut f.provenance {
                 if k == "heading_offset_per_drive" {
