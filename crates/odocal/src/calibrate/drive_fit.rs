@@ -2,6 +2,8 @@
 //! ([`crate::assess::validate`]), judged against θ fitted on the same
 //! drive ([`DriveFit`]).
 
+use std::borrow::Cow;
+
 use super::eiv::EivOutcome;
 use super::{calibrate, CalibrationOptions, Method, MethodDetail};
 use crate::assess::trust::VerdictReason;
@@ -63,12 +65,12 @@ pub fn validate(
 ) -> Result<ValidateReport> {
     let own = own_heading_offset(drive, opts);
     let opts = &match own {
-        Some(delta) => ValidateOptions {
+        Some(delta) => Cow::Owned(ValidateOptions {
             extrinsics: Extrinsics { heading_offset: delta, ..opts.extrinsics },
             reestimate_heading_offset: false,
             ..opts.clone()
-        },
-        None => opts.clone(),
+        }),
+        None => Cow::Borrowed(opts),
     };
     let mut report = validate_theta(drive, theta, opts, progress)?;
     report.calibration_drive = own.is_some();
