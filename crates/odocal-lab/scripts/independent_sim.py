@@ -30,11 +30,11 @@ LEVELS = {
     # reference noise. "heavy" is 2.5 × "paper" in every wheel source.
     "none": dict(common=0.0, tau_common=20.0, wheel=0.0, tau_wheel=5.0, white=0.0, slip=0.0,
                  ticks=0, pos_white=0.0, pos_drift=0.0, head_white=0.0, head_drift=0.0,
-                 tau_drift=200.0, head_offset=0.0, ay_sigma=0.0, beta_sigma=0.0),
+                 tau_drift=200.0, head_offset=0.0, ay_sigma=0.0, beta_sigma=0.0, dwell=1.0),
     "paper": dict(common=0.003, tau_common=20.0, wheel=0.0005, tau_wheel=5.0, white=0.002,
                   slip=0.003, ticks=500, pos_white=0.02, pos_drift=0.2, head_white=3e-4,
                   head_drift=1e-3, tau_drift=200.0, head_offset=0.02, ay_sigma=0.05,
-                  beta_sigma=1e-3),
+                  beta_sigma=1e-3, dwell=1.0),
 }
 LEVELS["heavy"] = dict(LEVELS["paper"], common=0.0075, wheel=0.00125, white=0.005, slip=0.0075)
 LEVELS["wheels-only"] = dict(LEVELS["paper"], pos_white=0.0, pos_drift=0.0, head_white=0.0,
@@ -121,7 +121,8 @@ def simulate(seed, length_km, level, substeps, ts=0.025, overrides=()):
     dwell = np.zeros_like(dt_s)
     for k in stops:
         if k < len(dwell):
-            dwell[k] = rng.uniform(2.0, 8.0)
+            # `dwell` scales the 2-8 s (0: the car passes its stops at 0.3 m/s).
+            dwell[k] = rng.uniform(2.0, 8.0) * L["dwell"]
     t_s_path = np.concatenate([[0.0], np.cumsum(dt_s + dwell)])
     s_path = np.arange(len(kappa)) * ds
     # The fine time grid, and the arc length along it.
