@@ -248,6 +248,12 @@ fn correct_bias_corrects_the_named_parameters_with_held_noise() {
     let out = text(&o.stdout);
     assert!(out.contains("  bias correction: subtracted c_e "), "{out}");
     assert!(out.contains("  σ includes the correction's Monte Carlo error: c_e "), "{out}");
+    // Only the parameters it corrects (c_e and c_d by default) are listed.
+    let line = |start: &str| out.lines().find(|l| l.starts_with(start)).unwrap_or_default().to_owned();
+    let subtracted = line("  bias correction: subtracted ");
+    assert!(subtracted.split(';').next().is_some_and(|s| s.contains("c_d") && !s.contains("t_r")), "{out}");
+    let mc = line("  σ includes the correction's Monte Carlo error: ");
+    assert!(mc.contains("c_d") && !mc.contains("t_r") && !mc.contains(", d "), "{out}");
     let o = odocal(&["calibrate", dstr, "--method", "eiv", "--no-fallback", "--no-bias-correction"]);
     assert!(!text(&o.stdout).contains("bias correction"), "{}", text(&o.stdout));
 }

@@ -884,16 +884,19 @@ impl EivDetail {
                     let _ = writeln!(out, "  σ widened for the estimated noise levels: {}", parts.join(", "));
                 }
                 if e.bias_subtracted.iter().any(|b| *b != 0.0) {
+                    // The parameters the correction named (the others' entries are zeros).
+                    let corrected: [bool; 4] =
+                        std::array::from_fn(|i| e.bias_subtracted[i] != 0.0 || e.sigma_bias_correction[i] != 0.0);
                     let _ = writeln!(
                         out,
                         "  bias correction: subtracted {}; uncorrected {}",
-                        theta_in_units(&e.bias_subtracted, true),
+                        only(&theta_in_units(&e.bias_subtracted, true), corrected),
                         theta_in_units(&e.theta_uncorrected.to_array(), false)
                     );
                     let _ = writeln!(
                         out,
                         "  σ includes the correction's Monte Carlo error: {}",
-                        theta_in_units(&e.sigma_bias_correction, false)
+                        only(&theta_in_units(&e.sigma_bias_correction, false), corrected)
                     );
                 }
             }
@@ -969,6 +972,13 @@ fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
             }
         })
         .collect();
+    parts.join(", ")
+}
+
+/// The parts of [`theta_in_units`]'s list (`c_e …, c_d …, t_r …, d …`)
+/// whose parameter `keep` marks.
+fn only(list: &str, keep: [bool; 4]) -> String {
+    let parts: Vec<&str> = list.split(", ").zip(keep).filter(|(_, k)| *k).map(|(p, _)| p).collect();
     parts.join(", ")
 }
 

@@ -950,6 +950,15 @@ fn the_details_name_the_released_noise_sources() {
     assert!(details.contains(outcome), "{details}");
 }
 
+/// The bias-correction lines list only the parameters the correction named.
+#[test]
+fn only_keeps_the_marked_parameters() {
+    let all = theta_in_units(&[1e-6, 2e-7, 0.0, 0.0], true);
+    assert_eq!(only(&all, [true, true, false, false]), "c_e +0.000001 m, c_d +0.0002 mm");
+    assert_eq!(only(&all, [false, false, false, true]), "d +0.0000 mm/(m/s²)");
+    assert_eq!(only(&all, [true; 4]), all);
+}
+
 #[test]
 fn theta_in_units_prints_no_negative_zero() {
     let tiny = [-1e-9, -2e-8, 1e-9, -3e-9];
