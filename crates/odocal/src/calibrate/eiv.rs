@@ -135,9 +135,11 @@ use crate::model::{Theta, THETA_UNITS};
 use crate::progress::{emit, Progress, ProgressFn};
 
 mod refits;
+mod text;
 #[cfg(test)]
 use refits::{carried_covariance, RELEASED_LOWER_CLAMP};
 use refits::{carry_held_scale, refit_at_clamp, refit_with_sources_released, release_held_noise, ClampRefit};
+use text::{heading_drift_line, only, theta_in_units};
 
 /// Settings of the EIV method.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -952,52 +954,6 @@ impl EivDetail {
             }
         }
         out
-    }
-}
-
-/// `[c_e, c_d, t_r, d]` (SI) as "c_e … m, c_d … mm, t_r … m, d … mm/(m/s²)",
-/// with a sign when `signed`.
-fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
-    let parts: Vec<String> = THETA_UNITS
-        .iter()
-        .zip(a)
-        .map(|((name, scale, unit, digits), v)| {
-            let x = v * scale;
-            // A value that rounds to zero prints as 0, not -0.
-            let x = if (x * 10f64.powi(*digits as i32)).round() == 0.0 { 0.0 } else { x };
-            if signed {
-                format!("{name} {x:+.digits$} {unit}")
-            } else {
-                format!("{name} {x:.digits$} {unit}")
-            }
-        })
-        .collect();
-    parts.join(", ")
-}
-
-/// The parts of [`theta_in_units`]'s list (`c_e …, c_d …, t_r …, d …`)
-/// whose parameter `keep` marks.
-fn only(list: &str, keep: [bool; 4]) -> String {
-    let parts: Vec<&str> = list.split(", ").zip(keep).filter(|(_, k)| *k).map(|(p, _)| p).collect();
-    parts.join(", ")
-}
-
-/// The heading-drift test in one line of the method details.
-fn heading_drift_line(h: &crate::eiv::HeadingDriftTest) -> String {
-    match (h.separate, h.likelihood_ratio) {
-        (true, Some(lr)) => format!(
-            "own scale η_6 = {:.2} (e^{:+.2} × the position drift's; likelihood ratio {lr:.1}, score {:.1})",
-            h.eta, h.log_ratio, h.score_statistic
-        ),
-        (_, Some(lr)) if lr > crate::eiv::HEADING_DRIFT_LR_THRESHOLD => format!(
-            "tied to the position drift (score {:.1}, likelihood ratio {lr:.1}; the separate fit did not converge)",
-            h.score_statistic
-        ),
-        (_, Some(lr)) => format!(
-            "tied to the position drift (score {:.1}; likelihood ratio {lr:.1} not significant)",
-            h.score_statistic
-        ),
-        (_, None) => format!("tied to the position drift (score {:.1})", h.score_statistic),
     }
 }
 
