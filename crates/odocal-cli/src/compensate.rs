@@ -132,18 +132,16 @@ fn reference_extrinsics(
     let mut opts = ValidateOptions { fit_drive: false, ..ValidateOptions::default() };
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
     let start = crate::validate::OffsetStart::of(&from_file, stated.is_some());
-    let mut own = false;
-    let (extrinsics, fit): (Extrinsics, Option<HeadingOffsetFit>) = if opts.reestimate_heading_offset {
+    let (extrinsics, fit, own): (Extrinsics, Option<HeadingOffsetFit>, bool) = if opts.reestimate_heading_offset {
         let r = odocal::validate(drive, &a.theta.theta, &opts, None).map_err(|e| {
             anyhow::anyhow!(
                 "{}: re-estimating the drive's heading offset: {e}; --carry-heading-offset holds it as given",
                 a.drive.display()
             )
         })?;
-        own = r.calibration_drive;
-        (r.extrinsics, r.heading_offset_fit)
+        (r.extrinsics, r.heading_offset_fit, r.calibration_drive)
     } else {
-        (opts.extrinsics, None)
+        (opts.extrinsics, None, false)
     };
     let mut notes = Vec::new();
     if extrinsics != Extrinsics::default() {

@@ -94,12 +94,14 @@ fn validate<'py>(
         Some(f) => odocal::Theta::try_from(f).map_err(lib_err)?,
         None => extract_theta(theta)?,
     };
+    // A report's JSON as a value: its `wheel_scale` and its drives' fingerprints.
+    let report_value = report_json.and_then(|j| serde_json::from_str::<serde_json::Value>(j).ok());
     // What θ's c_e is per (a report's `wheel_scale`, a parameter file's
     // provenance) against the drive's: warned about, as `odocal validate` does.
     let theta_scale = match (report_json, &file) {
-        (Some(j), _) => serde_json::from_str::<serde_json::Value>(j)
-            .ok()
-            .and_then(|v| v.get("wheel_scale").and_then(|w| w.as_str()).map(str::to_string)),
+        (Some(_), _) => {
+            report_value.as_ref().and_then(|v| v.get("wheel_scale").and_then(|w| w.as_str()).map(str::to_string))
+        }
         (None, Some(f)) => f.provenance.iter().find(|(k, _)| k == "wheel_scale").map(|(_, v)| v.clone()),
         (None, None) => None,
     };
@@ -115,8 +117,7 @@ fn validate<'py>(
     let file = match report_json {
         Some(j) => {
             let mut f = report_from_json(j)?.param_file("");
-            let value = serde_json::from_str::<serde_json::Value>(j).unwrap_or_default();
-            if let Some(fp) = files::calibration_fingerprints(&value) {
+            if let Some(fp) = report_value.as_ref().and_then(files::calibration_fingerprints) {
                 f.provenance.push(("fingerprint".into(), fp));
             }
             Some(f)
