@@ -892,13 +892,13 @@ impl EivDetail {
                     let _ = writeln!(
                         out,
                         "  bias correction: subtracted {}; uncorrected {}",
-                        only(&theta_in_units(&e.bias_subtracted, true), corrected),
+                        only(&e.bias_subtracted, true, corrected),
                         theta_in_units(&e.theta_uncorrected.to_array(), false)
                     );
                     let _ = writeln!(
                         out,
                         "  σ includes the correction's Monte Carlo error: {}",
-                        only(&theta_in_units(&e.sigma_bias_correction, false), corrected)
+                        only(&e.sigma_bias_correction, false, corrected)
                     );
                 }
             }

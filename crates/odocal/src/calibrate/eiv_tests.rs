@@ -953,10 +953,11 @@ fn the_details_name_the_released_noise_sources() {
 /// The bias-correction lines list only the parameters the correction named.
 #[test]
 fn only_keeps_the_marked_parameters() {
-    let all = theta_in_units(&[1e-6, 2e-7, 0.0, 0.0], true);
-    assert_eq!(only(&all, [true, true, false, false]), "c_e +0.000001 m, c_d +0.0002 mm");
-    assert_eq!(only(&all, [false, false, false, true]), "d +0.0000 mm/(m/s²)");
-    assert_eq!(only(&all, [true; 4]), all);
+    let a = [1e-6, 2e-7, 0.0, 0.0];
+    let all = theta_in_units(&a, true);
+    assert_eq!(only(&a, true, [true, true, false, false]), "c_e +0.000001 m, c_d +0.0002 mm");
+    assert_eq!(only(&a, true, [false, false, false, true]), "d +0.0000 mm/(m/s²)");
+    assert_eq!(only(&a, true, [true; 4]), all);
 }
 
 #[test]

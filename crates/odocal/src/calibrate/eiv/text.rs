@@ -6,10 +6,17 @@ use crate::model::THETA_UNITS;
 /// `[c_e, c_d, t_r, d]` (SI) as "c_e … m, c_d … mm, t_r … m, d … mm/(m/s²)",
 /// with a sign when `signed`.
 pub(super) fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
+    only(a, signed, [true; 4])
+}
+
+/// [`theta_in_units`] of the parameters `keep` marks.
+pub(super) fn only(a: &[f64; 4], signed: bool, keep: [bool; 4]) -> String {
     let parts: Vec<String> = THETA_UNITS
         .iter()
         .zip(a)
-        .map(|((name, scale, unit, digits), v)| {
+        .zip(keep)
+        .filter(|(_, k)| *k)
+        .map(|(((name, scale, unit, digits), v), _)| {
             let x = v * scale;
             // A value that rounds to zero prints as 0, not -0.
             let x = if (x * 10f64.powi(*digits as i32)).round() == 0.0 { 0.0 } else { x };
@@ -20,13 +27,6 @@ pub(super) fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
             }
         })
         .collect();
-    parts.join(", ")
-}
-
-/// The parts of [`theta_in_units`]'s list (`c_e …, c_d …, t_r …, d …`)
-/// whose parameter `keep` marks.
-pub(super) fn only(list: &str, keep: [bool; 4]) -> String {
-    let parts: Vec<&str> = list.split(", ").zip(keep).filter(|(_, k)| *k).map(|(p, _)| p).collect();
     parts.join(", ")
 }
 
