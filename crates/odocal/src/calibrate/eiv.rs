@@ -33,7 +33,9 @@
 //! `clamp_refit_hold_scale`, on by default) with c_e held at the
 //! start's value (`refit_at_clamp`); that refit replaces it when it has no
 //! finding and its t_r is not above the start's, and its covariance carries
-//! the start's σ of c_e (`carried_covariance`). When there is still at least one and
+//! the start's σ of c_e (`carried_covariance`). When there is still at
+//! least one other than θ unstable across the drive's halves (which keeps
+//! the EIV θ, doubtful: `demands_fallback`) and
 //! [`EivMethodOptions::fallback`] is on (the default), the report's θ is the
 //! starting batch Gauss-Newton (all cut segments, no yaw-rate selection),
 //! with its covariance and observability, and [`Warning::EivFallback`] says
@@ -577,7 +579,7 @@ impl Estimator for EivMethodOptions {
             Err(e) => return Err(e),
         };
         let (findings, notes) = findings_and_notes(report.as_deref());
-        let fall_back = error.is_some() || (self.fallback && !findings.is_empty());
+        let fall_back = error.is_some() || (self.fallback && findings.iter().any(demands_fallback));
         let mut warnings: Vec<Warning> = findings
             .iter()
             .map(|finding| Warning::EivCheckFailed { finding: finding.clone(), fell_back: fall_back })
@@ -691,7 +693,7 @@ impl EivMethodOptions {
         }
         let mut correction_failed = None;
         if let Ok(r) = &mut fit {
-            let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
+            let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r) && demands_fallback(w));
             if !(self.fallback && misspecified) {
                 match eiv::apply_bias_correction(input, r, refit_options.as_ref().unwrap_or(filter)) {
                     Ok(()) => {}
@@ -757,6 +759,18 @@ fn batch_start(
         }
         Err(e) => Err(e),
     }
+}
+
+/// True for a finding that sends the result to the fallback: every
+/// misspecification ([`is_misspecification`]) but θ unstable across the
+/// drive's halves. That check says θ moved along the drive or the filter's
+/// σ is short of the drive's slow noise; batch Gauss-Newton over the same
+/// drive mends neither, and its t_r leans up with the wheel noise. The EIV
+/// estimate stays, doubtful (`VerdictReason::Misspecified`), with its σ
+/// for the next drive at least its start's cluster-robust σ
+/// (docs/validation.md, "θ unstable across halves: EIV kept").
+fn demands_fallback(finding: &EivWarning) -> bool {
+    !matches!(finding, EivWarning::UnstableAcrossHalves { .. })
 }
 
 /// The filter's findings other than `Unobservable` (reported through the

@@ -968,3 +968,63 @@ fn theta_in_units_prints_no_negative_zero() {
     let some = [-2e-6, -7e-7, 0.0, 1e-7];
     assert_eq!(theta_in_units(&some, true), "c_e -0.000002 m, c_d -0.0007 mm, t_r +0.000000 m, d +0.0001 mm/(m/s²)");
 }
+
+/// The wheels' scale changed halfway through the drive (every wheel
+/// reading of the second half 0.5 % larger: c_e moved, as after a tyre
+/// change): θ from the two halves disagrees and that is the only check
+/// that fails. The default keeps the EIV estimate (batch Gauss-Newton over
+/// the same drive mends nothing), doubtful for the failed check, with its
+/// σ for the next drive at least the start's cluster-robust σ; any other
+/// failed check still falls back.
+#[test]
+fn theta_unstable_across_halves_keeps_the_eiv_estimate() {
+    let out = simulate(&SimOptions { length_km: 8.0, ..SimOptions::paper(4) }).expect("sim");
+    let d = &out.drive;
+    let half = d.len() / 2;
+    let mut measured = d.measured().clone();
+    for n in [&mut measured.n_rl, &mut measured.n_rr] {
+        n[half..].iter_mut().for_each(|x| *x *= 1.005);
+    }
+    let changed = crate::drive::DriveBuilder {
+        t: d.t().to_vec(),
+        measured,
+        sample_time_s: Some(d.sample_time_s()),
+        context: "scale changed halfway".into(),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive");
+    let r = calibrate(&changed, &CalibrationOptions::default()).expect("calibrate");
+    let failed: Vec<_> = r
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            Warning::EivCheckFailed { finding, fell_back } => Some((finding.clone(), *fell_back)),
+            _ => None,
+        })
+        .collect();
+    assert!(!failed.is_empty(), "{:?}", r.warnings);
+    for (finding, fell_back) in &failed {
+        assert!(matches!(finding, EivWarning::UnstableAcrossHalves { .. }), "{finding:?}");
+        assert!(!fell_back);
+    }
+    let det = detail(&r);
+    assert_eq!(det.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
+    assert_eq!(Some(r.theta), det.eiv.as_ref().map(|e| e.theta));
+    assert_eq!(r.verdict.level, crate::VerdictLevel::Doubtful, "{:?}", r.verdict);
+    assert!(r
+        .verdict
+        .reasons
+        .iter()
+        .any(|x| matches!(x, VerdictReason::Misspecified { checks } if *checks == failed.len())));
+    // The kept fit was bias-corrected, as a fit that passes is.
+    let e = det.eiv.as_ref().expect("EIV report");
+    assert!(e.bias_subtracted.iter().any(|b| *b != 0.0), "{:?}", e.bias_subtracted);
+    // Its σ for the next drive: at least the start's cluster-robust σ.
+    let robust = det.identification.robust.as_ref().expect("the start's cluster-robust covariance");
+    let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    for i in 0..4 {
+        let within = next.within_drive[i].expect("estimated");
+        assert!(within >= robust.covariance[i][i].sqrt(), "parameter {i}: {within} below the start's");
+    }
+}
