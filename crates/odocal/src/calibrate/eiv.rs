@@ -152,9 +152,10 @@ pub struct EivMethodOptions {
     /// [`EivOptions::fix_noise`]. Its `free` is replaced by the
     /// calibration's free set ([`super::CalibrationOptions::identify`]).
     pub filter: EivOptions,
-    /// When a consistency check fails (or the filter fails), report the
-    /// starting batch Gauss-Newton over all cut segments instead of the EIV
-    /// θ. Default true.
+    /// When a consistency check other than θ unstable across the drive's
+    /// halves fails (or the filter fails), report the starting batch
+    /// Gauss-Newton over all cut segments instead of the EIV θ (module
+    /// docs). Default true.
     pub fallback: bool,
     /// A parametric bootstrap of the EIV estimate (`eiv::bootstrap`:
     /// re-simulate the fitted noise at the fitted θ on the drive's own
