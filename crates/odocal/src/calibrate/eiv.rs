@@ -656,8 +656,9 @@ impl EivMethodOptions {
     }
 
     /// The filter from `theta` without the bias correction; then, unless
-    /// the fallback is on and the checks find the model misspecified, the
-    /// correction (a bootstrap, B more fits) applied to it — so the
+    /// the fallback is on and the checks find a misspecification that sends
+    /// the result to it ([`demands_fallback`]), the correction (a
+    /// bootstrap, B more fits) applied to it — so the
     /// correction runs only for a fit that is kept. A correction that
     /// cannot be computed leaves the fit the checks accepted uncorrected and
     /// is returned as the second value (a warning, not a fallback: the
