@@ -1,0 +1,94 @@
+//! The Cramér–Rao bound of drives from the lab's second simulator
+//! (`scripts/independent_sim.py`), for comparing the default's errors on
+//! them with what the drive can tell (docs/validation.md, "The default's
+//! t_r bias"). The bound is the filter's model's, so it holds for drives
+//! whose noise that model can represent: run the simulator with
+//! `--set slip=0 --set head_offset=0` (slip with acceleration and the
+//! reference's heading offset are not in it; the small a_y and β biases
+//! the simulator adds are left out of the bound).
+//!
+//! For each `DRIVE.csv` (with `DRIVE.truth.json` beside it) prints the
+//! bound at θ_true with the simulator's noise model stated in the filter's
+//! terms, linearised along the drive's true inputs, with the noise known
+//! and with the noise scales estimated (CRB_η), and the mean-only bound
+//! (the information the innovations' mean carries, not their size), in %
+//! of θ_true for c_e and t_r, mm for c_d and mm/(m/s²) for d.
+
+use std::path::Path;
+
+use odocal::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
+use odocal::model::Theta;
+use odocal_lab::{error_scale, Args, Res};
+use serde_json::Value;
+
+const USAGE: &str = "second_sim_crb DRIVE.csv [DRIVE.csv ...]   (each with DRIVE.truth.json beside it)";
+
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+/// A number of the truth file's `settings`.
+fn setting(settings: &Value, key: &str) -> Res<f64> {
+    settings[key].as_f64().ok_or_else(|| format!("truth settings: no number `{key}`").into())
+}
+
+/// The simulator's noise settings in the filter's terms: the relative white
+/// wheel error per sample, one encoder tick per sample as the quantisation
+/// step, the common-mode and per-wheel Gauss-Markov errors with their time
+/// constants, the reference's white and drifting errors (one correlation
+/// time), white a_y and β noise (β's time constant one sample).
+fn noise_of(settings: &Value, sample_time_s: f64) -> Res<NoiseModel> {
+    let ticks = setting(settings, "ticks")?;
+    Ok(NoiseModel {
+        wheel_white_rel_sigma: setting(settings, "white")?,
+        quantisation_step_rev_per_s: if ticks > 0.0 { 1.0 / (ticks * sample_time_s) } else { 0.0 },
+        wheel_common_rel_sigma: setting(settings, "common")?,
+        wheel_common_time_constant_s: setting(settings, "tau_common")?,
+        wheel_differential_rel_sigma: setting(settings, "wheel")?,
+        wheel_differential_time_constant_s: setting(settings, "tau_wheel")?,
+        position_white_sigma_m: setting(settings, "pos_white")?,
+        heading_white_sigma_rad: setting(settings, "head_white")?,
+        position_drift_sigma_m: setting(settings, "pos_drift")?,
+        heading_drift_sigma_rad: setting(settings, "head_drift")?,
+        drift_time_constant_s: setting(settings, "tau_drift")?,
+        lateral_acceleration_sigma_m_per_s2: setting(settings, "ay_sigma")?,
+        sideslip_sigma_rad: setting(settings, "beta_sigma")?,
+        sideslip_time_constant_s: sample_time_s,
+    })
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let paths: Vec<String> = args.positional().to_vec();
+    if paths.is_empty() {
+        return Err(USAGE.into());
+    }
+    println!(
+        "drive | CRB known noise: c_e % c_d mm t_r % d | CRB_η (noise estimated) | mean-only (known noise, the \
+         innovations' size carries nothing)"
+    );
+    for csv in &paths {
+        let truth_path = Path::new(csv).with_extension("truth.json");
+        let truth: Value = serde_json::from_str(&std::fs::read_to_string(&truth_path)?)?;
+        let settings = &truth["settings"];
+        for key in ["slip", "head_offset"] {
+            if setting(settings, key)?.abs() > 0.0 {
+                return Err(format!("{csv}: `{key}` is not 0, which the bound's model cannot represent").into());
+            }
+        }
+        let t = &truth["theta_true"];
+        let num = |k: &str| t[k].as_f64().ok_or_else(|| format!("truth: no theta_true.{k}"));
+        let theta = Theta { c_e: num("c_e")?, c_d: num("c_d")?, t_r: num("t_r")?, d: num("d")? };
+        let (drive, _) = odocal::load_drive(csv)?;
+        let noise = noise_of(settings, drive.sample_time_s())?;
+        let input = EivInput::from_drive_truth(&drive)?;
+        let crb = cramer_rao_bound(&input, &theta, &noise, &EivOptions::spec())?;
+        let scale = error_scale(&theta);
+        let show = |s: [f64; 4]| {
+            (0..4).map(|i| format!("{:.4}", s[i] * scale[i])).collect::<Vec<_>>().join(" ")
+        };
+        let estimated = crb.sigma_noise_estimated.map_or("-".to_string(), show);
+        println!("{csv} | {} | {estimated} | {}", show(crb.sigma), show(crb.sigma_mean_only));
+    }
+    Ok(())
+}
