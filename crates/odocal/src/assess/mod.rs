@@ -21,7 +21,8 @@
 //!   and more than [`trust::TrustOptions::min_split_fraction`] of the guard
 //!   half-width (*cross-split consistency*: two halves of one drive, or two
 //!   drives of one vehicle, should give one θ).
-//!   or (EIV with its fallback off) the filter's consistency checks failed
+//!   or the filter's consistency checks failed (EIV with its fallback off,
+//!   or θ unstable across halves alone, which keeps the EIV θ)
 //!   on the returned θ ([`crate::Warning::EivCheckFailed`]), or the batch
 //!   Gauss-Newton that gives θ (batch-gn, the EIV fallback, the 3-step's
 //!   step 3) stopped at its iteration limit while its last step still moved

@@ -554,9 +554,9 @@ pub enum VerdictReason {
         /// The allowed ratio.
         max_ratio: f64,
     },
-    /// The method's model does not fit the data: EIV consistency checks
-    /// failed on the returned θ (doubtful; the warnings name each check
-    /// and window).
+    /// The method's model does not fit the data, or θ moved along the
+    /// drive: EIV consistency checks failed on the returned θ (doubtful;
+    /// the warnings name each check and window).
     Misspecified {
         /// Checks that failed.
         checks: usize,

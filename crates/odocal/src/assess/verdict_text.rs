@@ -114,8 +114,8 @@ impl std::fmt::Display for VerdictReason {
             }
             VerdictReason::Misspecified { checks } => write!(
                 f,
-                "{checks} EIV consistency check(s) failed on this θ: the noise model does not fit these data (see the \
-                 warnings)"
+                "{checks} EIV consistency check(s) failed on this θ: the noise model does not fit these data, or θ \
+                 moved along the drive (see the warnings)"
             ),
             VerdictReason::ModelSigmaOnly { stage, needs } => write!(
                 f,

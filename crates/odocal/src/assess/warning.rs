@@ -133,7 +133,9 @@ pub enum Warning {
         /// The filter's finding.
         finding: EivWarning,
         /// True when the report's θ is therefore the batch G-N fallback;
-        /// false when the EIV θ was kept (fallback off) despite it.
+        /// false when the EIV θ was kept despite it: the fallback is off,
+        /// or the only findings are θ unstable across halves, which does
+        /// not send the result to the fallback.
         fell_back: bool,
     },
     /// EIV: a finding of the filter that is not a failure: innovations
@@ -342,7 +344,14 @@ impl std::fmt::Display for Warning {
             Warning::EivCheckFailed { finding, fell_back } => write!(
                 f,
                 "EIV check failed: {finding}{}",
-                if *fell_back { "" } else { " (EIV result kept: fallback off)" }
+                match (fell_back, finding) {
+                    (true, _) => "",
+                    (false, EivWarning::UnstableAcrossHalves { .. }) => {
+                        " (EIV result kept: θ moved along the drive, or its σ is short of the drive's slow noise; \
+                         batch G-N over the same drive would mend neither)"
+                    }
+                    (false, _) => " (EIV result kept: fallback off)",
+                }
             ),
             Warning::EivCheckNote { finding } => write!(
                 f,

@@ -1007,6 +1007,8 @@ fn theta_unstable_across_halves_keeps_the_eiv_estimate() {
     for (finding, fell_back) in &failed {
         assert!(matches!(finding, EivWarning::UnstableAcrossHalves { .. }), "{finding:?}");
         assert!(!fell_back);
+        let text = Warning::EivCheckFailed { finding: finding.clone(), fell_back: false }.to_string();
+        assert!(text.contains("(EIV result kept: θ moved along the drive"), "{text}");
     }
     let det = detail(&r);
     assert_eq!(det.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
