@@ -7,6 +7,16 @@
 //! reference's heading offset are not in it; the small a_y and β biases
 //! the simulator adds are left out of the bound).
 //!
+//! With `--fit VARIANT` it fits instead: the default method with the
+//! simulator's noise model as its start, every level held but the
+//! reference heading's white noise, and prints t_r's error and that
+//! level over the simulator's. Variants: `as-is`; `no-heading-floor`
+//! (the heading readings' own white noise not in the heading's variance);
+//! `eta-without-jacobian` (the η step on M without the Gauss-Markov
+//! log-Jacobian); `no-common-jacobian` (no common-mode log-Jacobian in J
+//! and M). `default+VARIANT`: the same switch on the default as it is
+//! (its own starting noise model, every level estimated).
+//!
 //! For each `DRIVE.csv` (with `DRIVE.truth.json` beside it) prints the
 //! bound at θ_true with the simulator's noise model stated in the filter's
 //! terms, linearised along the drive's true inputs, with the noise known
@@ -18,10 +28,12 @@ use std::path::Path;
 
 use odocal::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
 use odocal::model::Theta;
+use odocal::{calibrate, CalibrationOptions, Method};
 use odocal_lab::{error_scale, Args, Res};
 use serde_json::Value;
 
-const USAGE: &str = "second_sim_crb DRIVE.csv [DRIVE.csv ...]   (each with DRIVE.truth.json beside it)";
+const USAGE: &str = "second_sim_crb [--fit as-is|no-heading-floor|eta-without-jacobian|no-common-jacobian] DRIVE.csv \
+                     [DRIVE.csv ...]   (each with DRIVE.truth.json beside it)";
 
 fn main() {
     odocal_lab::main_with(run)
@@ -57,11 +69,54 @@ fn noise_of(settings: &Value, sample_time_s: f64) -> Res<NoiseModel> {
     })
 }
 
+/// The default method with `noise` as its start, every level held but the
+/// reference heading's white noise (η_5), and the variant's research switch.
+fn fit_options(noise: NoiseModel, variant: &str) -> Res<CalibrationOptions> {
+    let mut o = CalibrationOptions::default();
+    let Method::Eiv(e) = &mut o.method else { return Err("the default method is not EIV".into()) };
+    // `default+VARIANT`: the default's own start with every level estimated.
+    let variant = match variant.strip_prefix("default+") {
+        Some(v) => v,
+        None => {
+            e.filter.noise = noise;
+            e.filter.eta_held = [true, true, true, true, true, false];
+            variant
+        }
+    };
+    let r = &mut e.filter.research;
+    match variant {
+        "as-is" => {}
+        "no-heading-floor" => r.heading_floor_from_readings = false,
+        "eta-without-jacobian" => r.coloured_jacobian_in_marginal = false,
+        "no-common-jacobian" => r.common_mode_jacobian = false,
+        other => return Err(format!("--fit {other}: {USAGE}").into()),
+    }
+    Ok(o)
+}
+
 fn run() -> Res<()> {
-    let args = Args::parse(USAGE, &[])?;
+    let mut args = Args::parse(USAGE, &[])?;
+    let fit: Option<String> = args.opt("fit")?;
     let paths: Vec<String> = args.positional().to_vec();
+    args.finish()?;
     if paths.is_empty() {
         return Err(USAGE.into());
+    }
+    if let Some(variant) = fit {
+        println!("drive | t_r error % | heading white noise / the simulator's | result");
+        for csv in &paths {
+            let truth: Value = serde_json::from_str(&std::fs::read_to_string(Path::new(csv).with_extension("truth.json"))?)?;
+            let settings = &truth["settings"];
+            let t_r = truth["theta_true"]["t_r"].as_f64().ok_or("truth: no theta_true.t_r")?;
+            let (drive, _) = odocal::load_drive(csv)?;
+            let opts = fit_options(noise_of(settings, drive.sample_time_s())?, &variant)?;
+            let r = calibrate(&drive, &opts)?;
+            let json = serde_json::to_value(&r)?;
+            let heading = json["eiv"]["noise"]["heading_white_sigma_rad"].as_f64().unwrap_or(f64::NAN);
+            let ratio = heading / setting(settings, "head_white")?;
+            println!("{csv} | {:+.4} | {ratio:.4} | {}", (r.theta.t_r / t_r - 1.0) * 100.0, r.method);
+        }
+        return Ok(());
     }
     println!(
         "drive | CRB known noise: c_e % c_d mm t_r % d | CRB_η (noise estimated) | mean-only (known noise, the \
