@@ -15,7 +15,8 @@
 //! `eta-without-jacobian` (the η step on M without the Gauss-Markov
 //! log-Jacobian); `no-common-jacobian` (no common-mode log-Jacobian in J
 //! and M). `default+VARIANT`: the same switch on the default as it is
-//! (its own starting noise model, every level estimated).
+//! (its own starting noise model, every level estimated); `free+VARIANT`:
+//! the simulator's model as the start, every level estimated.
 //!
 //! For each `DRIVE.csv` (with `DRIVE.truth.json` beside it) prints the
 //! bound at θ_true with the simulator's noise model stated in the filter's
@@ -74,14 +75,18 @@ fn noise_of(settings: &Value, sample_time_s: f64) -> Res<NoiseModel> {
 fn fit_options(noise: NoiseModel, variant: &str) -> Res<CalibrationOptions> {
     let mut o = CalibrationOptions::default();
     let Method::Eiv(e) = &mut o.method else { return Err("the default method is not EIV".into()) };
-    // `default+VARIANT`: the default's own start with every level estimated.
-    let variant = match variant.strip_prefix("default+") {
-        Some(v) => v,
-        None => {
-            e.filter.noise = noise;
-            e.filter.eta_held = [true, true, true, true, true, false];
-            variant
-        }
+    // `default+VARIANT`: the default's own start with every level
+    // estimated; `free+VARIANT`: the simulator's model as the start, every
+    // level estimated.
+    let variant = if let Some(v) = variant.strip_prefix("default+") {
+        v
+    } else if let Some(v) = variant.strip_prefix("free+") {
+        e.filter.noise = noise;
+        v
+    } else {
+        e.filter.noise = noise;
+        e.filter.eta_held = [true, true, true, true, true, false];
+        variant
     };
     let r = &mut e.filter.research;
     match variant {
