@@ -99,6 +99,54 @@ fn fit_options(noise: NoiseModel, variant: &str) -> Res<CalibrationOptions> {
     Ok(o)
 }
 
+/// A drive of the second simulator with what its truth file says: θ_true,
+/// the noise settings and that noise in the filter's terms.
+struct SimDrive {
+    drive: odocal::Drive,
+    settings: Value,
+    theta: Theta,
+    noise: NoiseModel,
+}
+
+impl SimDrive {
+    fn load(csv: &str) -> Res<SimDrive> {
+        let truth: Value = serde_json::from_str(&std::fs::read_to_string(Path::new(csv).with_extension("truth.json"))?)?;
+        let t = &truth["theta_true"];
+        let num = |k: &str| t[k].as_f64().ok_or_else(|| format!("{csv}: truth has no theta_true.{k}"));
+        let theta = Theta { c_e: num("c_e")?, c_d: num("c_d")?, t_r: num("t_r")?, d: num("d")? };
+        let (drive, _) = odocal::load_drive(csv)?;
+        let settings = truth["settings"].clone();
+        let noise = noise_of(&settings, drive.sample_time_s())?;
+        Ok(SimDrive { drive, settings, theta, noise })
+    }
+}
+
+/// `--fit VARIANT` on one drive: t_r's error, the heading's white noise
+/// over the simulator's, and which estimate the result is.
+fn fit_line(csv: &str, sim: &SimDrive, variant: &str) -> Res<String> {
+    let r = calibrate(&sim.drive, &fit_options(sim.noise, variant)?)?;
+    let json = serde_json::to_value(&r)?;
+    let heading = json["eiv"]["noise"]["heading_white_sigma_rad"].as_f64().unwrap_or(f64::NAN);
+    let ratio = heading / setting(&sim.settings, "head_white")?;
+    Ok(format!("{csv} | {:+.4} | {ratio:.4} | {}", (r.theta.t_r / sim.theta.t_r - 1.0) * 100.0, r.method))
+}
+
+/// The bounds of one drive, refused where the simulator ran what the
+/// bound's model cannot represent.
+fn bound_line(csv: &str, sim: &SimDrive) -> Res<String> {
+    for key in ["slip", "head_offset"] {
+        if setting(&sim.settings, key)?.abs() > 0.0 {
+            return Err(format!("{csv}: `{key}` is not 0, which the bound's model cannot represent").into());
+        }
+    }
+    let input = EivInput::from_drive_truth(&sim.drive)?;
+    let crb = cramer_rao_bound(&input, &sim.theta, &sim.noise, &EivOptions::spec())?;
+    let scale = error_scale(&sim.theta);
+    let show = |s: [f64; 4]| (0..4).map(|i| format!("{:.4}", s[i] * scale[i])).collect::<Vec<_>>().join(" ");
+    let estimated = crb.sigma_noise_estimated.map_or("-".to_string(), show);
+    Ok(format!("{csv} | {} | {estimated} | {}", show(crb.sigma), show(crb.sigma_mean_only)))
+}
+
 fn run() -> Res<()> {
     let mut args = Args::parse(USAGE, &[])?;
     let fit: Option<String> = args.opt("fit")?;
@@ -107,48 +155,20 @@ fn run() -> Res<()> {
     if paths.is_empty() {
         return Err(USAGE.into());
     }
-    if let Some(variant) = fit {
-        println!("drive | t_r error % | heading white noise / the simulator's | result");
-        for csv in &paths {
-            let truth: Value = serde_json::from_str(&std::fs::read_to_string(Path::new(csv).with_extension("truth.json"))?)?;
-            let settings = &truth["settings"];
-            let t_r = truth["theta_true"]["t_r"].as_f64().ok_or("truth: no theta_true.t_r")?;
-            let (drive, _) = odocal::load_drive(csv)?;
-            let opts = fit_options(noise_of(settings, drive.sample_time_s())?, &variant)?;
-            let r = calibrate(&drive, &opts)?;
-            let json = serde_json::to_value(&r)?;
-            let heading = json["eiv"]["noise"]["heading_white_sigma_rad"].as_f64().unwrap_or(f64::NAN);
-            let ratio = heading / setting(settings, "head_white")?;
-            println!("{csv} | {:+.4} | {ratio:.4} | {}", (r.theta.t_r / t_r - 1.0) * 100.0, r.method);
-        }
-        return Ok(());
+    match &fit {
+        Some(_) => println!("drive | t_r error % | heading white noise / the simulator's | result"),
+        None => println!(
+            "drive | CRB known noise: c_e % c_d mm t_r % d | CRB_η (noise estimated) | mean-only (known noise, the \
+             innovations' size carries nothing)"
+        ),
     }
-    println!(
-        "drive | CRB known noise: c_e % c_d mm t_r % d | CRB_η (noise estimated) | mean-only (known noise, the \
-         innovations' size carries nothing)"
-    );
     for csv in &paths {
-        let truth_path = Path::new(csv).with_extension("truth.json");
-        let truth: Value = serde_json::from_str(&std::fs::read_to_string(&truth_path)?)?;
-        let settings = &truth["settings"];
-        for key in ["slip", "head_offset"] {
-            if setting(settings, key)?.abs() > 0.0 {
-                return Err(format!("{csv}: `{key}` is not 0, which the bound's model cannot represent").into());
-            }
-        }
-        let t = &truth["theta_true"];
-        let num = |k: &str| t[k].as_f64().ok_or_else(|| format!("truth: no theta_true.{k}"));
-        let theta = Theta { c_e: num("c_e")?, c_d: num("c_d")?, t_r: num("t_r")?, d: num("d")? };
-        let (drive, _) = odocal::load_drive(csv)?;
-        let noise = noise_of(settings, drive.sample_time_s())?;
-        let input = EivInput::from_drive_truth(&drive)?;
-        let crb = cramer_rao_bound(&input, &theta, &noise, &EivOptions::spec())?;
-        let scale = error_scale(&theta);
-        let show = |s: [f64; 4]| {
-            (0..4).map(|i| format!("{:.4}", s[i] * scale[i])).collect::<Vec<_>>().join(" ")
+        let sim = SimDrive::load(csv)?;
+        let line = match &fit {
+            Some(variant) => fit_line(csv, &sim, variant)?,
+            None => bound_line(csv, &sim)?,
         };
-        let estimated = crb.sigma_noise_estimated.map_or("-".to_string(), show);
-        println!("{csv} | {} | {estimated} | {}", show(crb.sigma), show(crb.sigma_mean_only));
+        println!("{line}");
     }
     Ok(())
 }
