@@ -119,7 +119,6 @@
 //! the start's check (the JSON's `identification.observability`), which may
 //! name none.
 
-use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
@@ -133,7 +132,7 @@ use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarni
 use crate::error::{Error, Result};
 use crate::identify::{batch_gauss_newton_drives, IdentifyOptions, IdentifyReport, Observability};
 use crate::model::param::{Param, ParamSet};
-use crate::model::{Theta, THETA_UNITS};
+use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 
 mod refits;
@@ -141,7 +140,8 @@ mod text;
 #[cfg(test)]
 use refits::{carried_covariance, RELEASED_LOWER_CLAMP};
 use refits::{carry_held_scale, refit_at_clamp, refit_with_sources_released, release_held_noise, ClampRefit};
-use text::{heading_drift_line, only, theta_in_units};
+#[cfg(test)]
+use text::{only, theta_in_units};
 
 /// Settings of the EIV method.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -184,6 +184,19 @@ pub struct EivMethodOptions {
     /// `filter.research.bias_correction` is set (feature `research`; that
     /// setting stands).
     pub correct_bias: Option<CorrectBias>,
+    /// Fit first with the reference heading's white noise at its readings'
+    /// own level ([`EivOptions::heading_white_at_floor`]): where that fit
+    /// passes the checks it is the estimate. Where it fails one that sends
+    /// the result to the fallback, or the filter fails, the drive's heading
+    /// carries noise its readings do not show (a heading whose noise is
+    /// correlated over a few samples, as a GNSS baseline's), and the fit
+    /// from [`EivMethodOptions::filter`] as given (the level above the
+    /// readings' estimated) follows. A level above the readings' fitted
+    /// where the drive does not need one takes up the wheels' unmodelled
+    /// error and leaves t_r too large (docs/validation.md, "The heading's
+    /// white noise: the readings' own first"). No effect where no floor is
+    /// read. Default true.
+    pub heading_white_readings_first: bool,
 }
 
 impl Default for EivMethodOptions {
@@ -194,6 +207,7 @@ impl Default for EivMethodOptions {
             bootstrap: None,
             estimate_heading_offset: true,
             correct_bias: Some(CorrectBias::default()),
+            heading_white_readings_first: true,
         }
     }
 }
@@ -287,6 +301,24 @@ impl HeldNoiseReleased {
     }
 }
 
+/// Why the fit with the heading's white noise at its readings' level was
+/// set aside ([`EivMethodOptions::heading_white_readings_first`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct FloorSetAside {
+    /// Its findings that send a result to the fallback.
+    pub findings: Vec<EivWarning>,
+    /// Its [`EivReport::heading_white_above_floor`]: twice the fall of M
+    /// when the heading's white noise is doubled in variance.
+    pub likelihood_ratio: Option<f64>,
+    /// The filter's error, where it failed.
+    pub error: Option<String>,
+}
+
+/// The likelihood ratio ([`EivReport::heading_white_above_floor`]) above
+/// which the drive's heading carries white noise beyond its readings': the
+/// χ²₁ quantile at 0.1 %, as the heading drift's test.
+pub(crate) const HEADING_WHITE_LR_THRESHOLD: f64 = 10.83;
+
 /// What the EIV method reports. In JSON its fields stand at the top level
 /// of the report (`identification`, `eiv`, `eiv_result`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -326,6 +358,12 @@ pub(crate) struct EivDetail {
     /// JSON only when present.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub held_noise_released: Option<Box<HeldNoiseReleased>>,
+    /// Why the fit with the heading's white noise at its readings' level
+    /// ([`EivMethodOptions::heading_white_readings_first`]) was set aside
+    /// for the fit with the level above estimated. In JSON only when
+    /// present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heading_white_floor_set_aside: Option<FloorSetAside>,
     /// The parametric bootstrap, when asked for
     /// ([`EivMethodOptions::bootstrap`]) and the EIV θ is the result.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -568,7 +606,7 @@ impl Estimator for EivMethodOptions {
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
         let start_theta = start.theta;
         let start_c_e_variance = start.robust_or_model_covariance()[0][0];
-        let Fitted { fit, correction_failed, refit, clamp_refit } =
+        let Fitted { fit, correction_failed, refit, clamp_refit, floor_set_aside, options } =
             self.fit(&filter_input, &start_theta, &filter, start_c_e_variance);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
@@ -596,6 +634,7 @@ impl Estimator for EivMethodOptions {
             refit,
             clamp_refit,
             held_noise_released: None,
+            heading_white_floor_set_aside: floor_set_aside,
             bootstrap: None,
         };
         if fall_back {
@@ -617,11 +656,11 @@ impl Estimator for EivMethodOptions {
             let estimated = identify.free.intersection(ParamSet::EXTRINSICS);
             warnings.push(Warning::EivExtrinsicsHeld { extrinsics, estimated });
         }
-        warnings.extend(bias_correction_warning(r, &filter, correction_failed));
+        warnings.extend(bias_correction_warning(r, &options, correction_failed));
         let bootstrap = match &self.bootstrap {
             Some(b) => {
                 emit(progress, Progress::Stage { name: "EIV bootstrap", total: 1 });
-                let boot = eiv::bootstrap(&filter_input, r, &filter, b)?;
+                let boot = eiv::bootstrap(&filter_input, r, &options, b)?;
                 emit(progress, Progress::Advance(1));
                 Some(Box::new(boot))
             }
@@ -671,6 +710,35 @@ impl EivMethodOptions {
     /// `start_c_e_variance` is the start's variance of c_e, which a refit
     /// holding c_e carries.
     fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions, start_c_e_variance: f64) -> Fitted {
+        if !self.heading_white_readings_first || filter.heading_white_at_floor {
+            return self.fit_with(input, theta, filter, start_c_e_variance);
+        }
+        // The probe is judged by its checks, so it is never bias-corrected
+        // when it fails them (whatever the fallback setting).
+        let probe = EivMethodOptions { fallback: true, ..self.clone() };
+        let at_floor = EivOptions { heading_white_at_floor: true, ..filter.clone() };
+        let first = probe.fit_with(input, theta, &at_floor, start_c_e_variance);
+        let set_aside = match &first.fit {
+            // No floor read: the fit is the one the given options make.
+            Ok(r) if !r.heading_white_at_floor => return first,
+            Ok(r) => {
+                let findings: Vec<EivWarning> =
+                    r.warnings.iter().filter(|w| is_misspecification(w, r) && demands_fallback(w)).cloned().collect();
+                let likelihood_ratio = r.heading_white_above_floor;
+                if findings.is_empty() && likelihood_ratio.is_none_or(|lr| lr <= HEADING_WHITE_LR_THRESHOLD) {
+                    return first;
+                }
+                FloorSetAside { findings, likelihood_ratio, error: None }
+            }
+            Err(Error::InvalidOption { .. }) => return first,
+            Err(e) => FloorSetAside { findings: Vec::new(), likelihood_ratio: None, error: Some(e.to_string()) },
+        };
+        Fitted { floor_set_aside: Some(set_aside), ..self.fit_with(input, theta, filter, start_c_e_variance) }
+    }
+
+    /// [`EivMethodOptions::fit`] from `filter` as given: the fit, its
+    /// refits and the bias correction.
+    fn fit_with(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions, start_c_e_variance: f64) -> Fitted {
         let uncorrected = filter.without_bias_correction();
         let mut fit = eiv::estimate(input, theta, &uncorrected);
         let mut refit = false;
@@ -709,18 +777,23 @@ impl EivMethodOptions {
                 carry_held_scale(r, &c.first_covariance, start_c_e_variance);
             }
         }
-        Fitted { fit, correction_failed, refit, clamp_refit }
+        let options = filter.clone();
+        Fitted { fit, correction_failed, refit, clamp_refit, floor_set_aside: None, options }
     }
 }
 
 /// What [`EivMethodOptions::fit`] returns: the fit (or the filter's
 /// error), a bias correction that could not be computed, whether the fit
-/// is a refit, and the refit after a noise scale at its upper clamp.
+/// is a refit, the refit after a noise scale at its upper clamp, the
+/// findings that set the fit at the heading readings' level aside, and the
+/// options of the fit that stands (the bootstrap's).
 struct Fitted {
     fit: Result<EivReport>,
     correction_failed: Option<String>,
     refit: bool,
     clamp_refit: Option<Box<ClampRefit>>,
+    floor_set_aside: Option<FloorSetAside>,
+    options: EivOptions,
 }
 
 /// The relative step (`‖Δθ/θ_scale‖∞`, [`IdentifyOptions::step_tolerance`])
@@ -850,126 +923,6 @@ fn eiv_outcome(
         timing,
         warnings,
         compensated: None,
-    }
-}
-
-impl EivDetail {
-    /// The EIV fit in lines as the CLI prints them: the filter's windows,
-    /// updates, iterations, termination and passes; the noise model at the
-    /// start and as estimated (physical units, `NoiseModel`'s `Display`); the
-    /// `known` sources held at the start; the σ widening for the estimated
-    /// noise levels; a bias correction; which estimate the result is (EIV
-    /// or the batch G-N fallback); the bootstrap's intervals. Through
-    /// [`crate::CalibrationReport::method_details`].
-    pub(crate) fn summary(&self, known: &[NoiseSource]) -> String {
-        let d = self;
-        let mut out = String::new();
-        match &d.eiv {
-            Some(e) => {
-                let _ = writeln!(
-                    out,
-                    "EIV: {} window(s), {} pose updates, {} it, {}; {} filter passes",
-                    e.windows.len(),
-                    e.updates,
-                    e.iterations,
-                    e.termination,
-                    e.evaluations[0] + e.evaluations[1]
-                );
-                let fixed = e.eta.iter().all(|x| *x == 0.0) && e.eta_sigma.iter().all(|x| *x == 0.0);
-                let _ = writeln!(out, "  noise, start:     {}", d.noise_start);
-                if !known.is_empty() {
-                    let names: Vec<&str> = known.iter().map(|s| s.name()).collect();
-                    let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
-                }
-                let _ = writeln!(out, "  noise, {}: {}", if fixed { "fixed    " } else { "estimated" }, e.noise);
-                super::render::clamp_lines(&mut out, e);
-                if let Some(h) = &e.heading_drift {
-                    let _ = writeln!(out, "  heading drift: {}", heading_drift_line(h));
-                }
-                if e.sigma_noise_estimate.iter().any(|x| *x > 0.0) {
-                    // σ with the η term over σ without it, per estimated parameter.
-                    let names = ["c_e", "c_d", "t_r", "d"];
-                    let parts: Vec<String> = (0..4)
-                        .filter(|i| e.sigma[*i] > 0.0)
-                        .map(|i| {
-                            // (The bias correction's Monte Carlo share is not part of the ratio.)
-                            let (m, n) = (e.sigma_bias_correction[i], e.sigma_noise_estimate[i]);
-                            let s = (e.sigma[i] * e.sigma[i] - m * m).max(0.0).sqrt();
-                            let without = (s * s - n * n).max(0.0).sqrt();
-                            format!("{} ×{:.2}", names[i], if without > 0.0 { s / without } else { f64::INFINITY })
-                        })
-                        .collect();
-                    let _ = writeln!(out, "  σ widened for the estimated noise levels: {}", parts.join(", "));
-                }
-                if e.bias_subtracted.iter().any(|b| *b != 0.0) {
-                    // The parameters the correction named (the others' entries are zeros).
-                    let corrected: [bool; 4] =
-                        std::array::from_fn(|i| e.bias_subtracted[i] != 0.0 || e.sigma_bias_correction[i] != 0.0);
-                    let _ = writeln!(
-                        out,
-                        "  bias correction: subtracted {}; uncorrected {}",
-                        only(&e.bias_subtracted, true, corrected),
-                        theta_in_units(&e.theta_uncorrected.to_array(), false)
-                    );
-                    let _ = writeln!(
-                        out,
-                        "  σ includes the correction's Monte Carlo error: {}",
-                        only(&e.sigma_bias_correction, false, corrected)
-                    );
-                }
-            }
-            None => {
-                let _ = writeln!(out, "EIV: filter failed: {}", d.eiv_error.as_deref().unwrap_or("unknown error"));
-            }
-        }
-        let _ = writeln!(
-            out,
-            "  result: {}",
-            match d.eiv_result {
-                EivOutcome::Eiv if d.clamp_refit.as_ref().is_some_and(|c| c.scale_held) => "EIV estimate (refitted with c_e held at the batch G-N start's after a noise scale at its upper clamp; its gap to the start and the start's σ of c_e are in σ)",
-                EivOutcome::Eiv if d.clamp_refit.is_some() => "EIV estimate (refitted with the common-mode wheel noise scale held after it reached its upper clamp; its gap to the batch G-N start is in σ)",
-                EivOutcome::Eiv if d.refit => "EIV estimate (refitted with the noise sources released; its gap to the batch G-N start is in σ)",
-                EivOutcome::Eiv => "EIV estimate",
-                EivOutcome::BatchGnFallback =>
-                    "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; with the fallback off, --no-fallback, EIV's θ is kept)",
-            }
-        );
-        if let Some(r) = &d.held_noise_released {
-            let names: Vec<&str> = r.held.iter().map(|s| s.name()).collect();
-            let verdict = if r.passes() {
-                "passes the checks: the drive contradicts the held level(s)".to_string()
-            } else {
-                format!("fails {} check(s) too", r.findings.len())
-            };
-            let _ = writeln!(
-                out,
-                "  with the held noise level(s) ({}) estimated: {}; {verdict}",
-                names.join(", "),
-                theta_in_units(&r.theta.to_array(), false)
-            );
-        }
-        if let Some(b) = &d.bootstrap {
-            let _ = writeln!(
-                out,
-                "  bootstrap: {} replicates ({} failed), {:.0} % basic intervals and the estimator's own bias:",
-                b.replicates.len(),
-                b.failed.len(),
-                100.0 * b.level
-            );
-            // c_e, t_r in m; c_d in mm; d in mm/(m/s²), as the θ table.
-            for (i, &(name, scale, _, prec)) in THETA_UNITS.iter().enumerate() {
-                let [lo, hi] = b.interval_basic[i];
-                let _ = writeln!(
-                    out,
-                    "    {name:<4} [{:.prec$}, {:.prec$}]  bias {:+.prec$}  corrected {:.prec$}",
-                    lo * scale,
-                    hi * scale,
-                    b.bias[i] * scale,
-                    b.theta_corrected.to_array()[i] * scale
-                );
-            }
-        }
-        out
     }
 }
 

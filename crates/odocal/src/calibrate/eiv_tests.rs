@@ -1030,3 +1030,60 @@ fn theta_unstable_across_halves_keeps_the_eiv_estimate() {
         assert!(within >= robust.covariance[i][i].sqrt(), "parameter {i}: {within} below the start's");
     }
 }
+
+/// The default fits the reference heading's white noise at its readings'
+/// level first. On a drive whose heading noise is white that fit stands.
+/// On one whose heading also carries noise correlated over 0.2 s, which
+/// the readings' differences do not show, the data ask for more heading
+/// noise than the readings' (its likelihood ratio, or its checks), the fit
+/// is set aside with why, and the fit with the level above the readings'
+/// estimated follows: the fit the option switched off gives.
+#[test]
+fn the_heading_white_noise_is_the_readings_own_first() {
+    use rand::{Rng, SeedableRng};
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(6) }).expect("sim");
+    let estimated_first = CalibrationOptions {
+        method: Method::Eiv(EivMethodOptions { heading_white_readings_first: false, ..Default::default() }),
+        ..CalibrationOptions::default()
+    };
+    let r = calibrate(&out.drive, &CalibrationOptions::default()).expect("calibrate");
+    let det = detail(&r);
+    let e = det.eiv.as_ref().expect("EIV report");
+    assert!(e.heading_white_at_floor, "{:?}", det.heading_white_floor_set_aside);
+    assert_eq!(det.heading_white_floor_set_aside, None);
+    assert_eq!(Some(e.noise.heading_white_sigma_rad), e.heading_noise_floor);
+    assert!(det.summary(&[]).contains("heading white noise: its readings' own"), "{}", det.summary(&[]));
+    let off = calibrate(&out.drive, &estimated_first).expect("calibrate");
+    assert!(!detail(&off).eiv.as_ref().expect("EIV report").heading_white_at_floor);
+
+    let d = &out.drive;
+    let mut measured = d.measured().clone();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let (a, sigma) = ((-d.sample_time_s() / 0.2).exp(), 3e-3);
+    let mut x = 0.0;
+    for psi in &mut measured.psi {
+        x = a * x + sigma * (1.0 - a * a).sqrt() * rng.sample::<f64, _>(rand_distr::StandardNormal);
+        *psi += x;
+    }
+    let correlated = crate::drive::DriveBuilder {
+        t: d.t().to_vec(),
+        measured,
+        sample_time_s: Some(d.sample_time_s()),
+        context: "heading noise correlated over 0.2 s".into(),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive");
+    let r = calibrate(&correlated, &CalibrationOptions::default()).expect("calibrate");
+    let det = detail(&r);
+    let found = det.heading_white_floor_set_aside.as_ref().expect("the fit at the floor set aside");
+    let lr = found.likelihood_ratio.expect("its likelihood ratio");
+    assert!(!found.findings.is_empty() || lr > HEADING_WHITE_LR_THRESHOLD, "{found:?}");
+    let e = det.eiv.as_ref().expect("EIV report");
+    assert!(!e.heading_white_at_floor);
+    let floor = e.heading_noise_floor.expect("floor");
+    assert!(e.noise.heading_white_sigma_rad > 1.1 * floor, "{} against {floor}", e.noise.heading_white_sigma_rad);
+    assert!(det.summary(&[]).contains("estimated above its readings' own"), "{}", det.summary(&[]));
+    let off = calibrate(&correlated, &estimated_first).expect("calibrate");
+    assert_eq!(off.theta, r.theta, "the fit that follows is the one without the floor first");
+}

@@ -97,6 +97,7 @@ research_pub! {
                 }
             }
         }
+        let heading_white_above_floor = heading_white_ratio(prob, &fit, opts)?;
         let (mut eta, mut eta_sigma) = (fit.eta, fit.eta_sigma);
         if opts.heading_scale == HeadingScale::TiedToPosition {
             // The heading white noise was scaled by η_3: report it so.
@@ -141,6 +142,8 @@ research_pub! {
             quantisation_step_from_readings: q_found,
             a_y_noise_floor: opts.research.a_y_sigma_floor,
             heading_noise_floor: opts.research.heading_white_sigma_floor.filter(|_| opts.heading_floor_given()),
+            heading_white_at_floor: opts.heading_white_held_at_floor,
+            heading_white_above_floor,
             time_constant_costs,
         };
         apply_bias_correction(input, &mut report, opts)?;
@@ -211,8 +214,13 @@ fn prepare<'o>(
             )
         },
     );
-    // Below R's own heading floor the readings' noise changes nothing.
-    let heading_floor = heading_floor.filter(|f| *f > filter::HEADING_FLOOR_RAD);
+    // Below R's own heading floor the readings' noise changes nothing; held
+    // at the readings' level, the heading's white noise is then R's floor.
+    let heading_floor = match heading_floor {
+        Some(f) if f > filter::HEADING_FLOOR_RAD => Some(f),
+        Some(_) if opts.heading_white_at_floor => Some(filter::HEADING_FLOOR_RAD),
+        _ => None,
+    };
     let opts =
         if opts.quantisation_level == QuantisationLevel::FromReadings || a_y_floor.is_some() || heading_floor.is_some()
         {
@@ -221,6 +229,25 @@ fn prepare<'o>(
             Cow::Borrowed(opts)
         };
     Ok((windows, opts, q_found))
+}
+
+/// Where the heading's white noise is held at its readings' level
+/// ([`EivOptions::heading_white_at_floor`]): twice the fall of M from that
+/// level to one of twice its variance (the readings' noise once more above
+/// them), θ and η held at the fit's (one objective-only pass). A lower
+/// bound of the likelihood ratio of a level above the readings'
+/// ([`EivReport::heading_white_above_floor`]).
+fn heading_white_ratio(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Option<f64>> {
+    let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.heading_white_held_at_floor) else {
+        return Ok(None);
+    };
+    let mut above = opts.clone();
+    above.noise.heading_white_sigma_rad = floor;
+    let p = Problem::new(prob.input, prob.windows.clone(), &above);
+    let mode = Mode::cost(opts.research.covariance == CovarianceMode::FollowsTheta);
+    let m = p.evaluate(&fit.theta, &fit.theta_reference(), &fit.eta, mode)?.total.merit();
+    prob.count_evaluations_of(&p, 1);
+    Ok(Some(2.0 * (fit.ev.total.merit() - m)))
 }
 
 /// The scoring passes of a fit and where they ended.

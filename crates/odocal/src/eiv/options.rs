@@ -195,6 +195,24 @@ pub struct EivOptions {
     /// Whether the reference's heading white noise has its own scale η_5.
     /// Default [`HeadingScale::Separate`] (see its docs).
     pub heading_scale: HeadingScale,
+    /// Where the heading readings' own white noise is read
+    /// ([`EivReport::heading_noise_floor`](crate::eiv::EivReport::heading_noise_floor)),
+    /// the reference heading's white noise is that and nothing more: the
+    /// starting model's heading white noise is dropped and its scale η_5
+    /// held, so no fitted level above the readings' can take up the
+    /// wheels' unmodelled error (the errors-in-variables balance tipped
+    /// toward the reference leaves t_r too large; docs/validation.md, "The
+    /// heading's white noise: the readings' own first"). No effect where
+    /// no floor is read (the noise held, the heading's level known, or
+    /// readings too smooth to show one). `calibrate`'s EIV method fits at
+    /// the readings' level first ([`EivMethodOptions::heading_white_readings_first`](crate::calibrate::EivMethodOptions::heading_white_readings_first)).
+    /// Default false.
+    pub heading_white_at_floor: bool,
+    /// Set where [`EivOptions::heading_white_at_floor`] took effect: the
+    /// heading white noise's scale is held at the readings' level, not by
+    /// the user (whose held level has no floor).
+    #[serde(skip)]
+    pub(crate) heading_white_held_at_floor: bool,
     /// The estimator's modelling alternatives; public with the cargo
     /// feature `research` (the studies of crates/odocal-lab), otherwise
     /// always their defaults (`EivOptions::spec` aside).
@@ -577,6 +595,8 @@ impl Default for EivOptions {
             max_half_z: 4.0,
             quantisation: QuantisationModel::Counting,
             heading_scale: HeadingScale::Separate,
+            heading_white_at_floor: false,
+            heading_white_held_at_floor: false,
             quantisation_level: QuantisationLevel::FromReadings,
             lateral_noise: LateralNoise::TiedToWheelWhite,
             research: ResearchOptions::default(),
@@ -651,7 +671,8 @@ impl EivOptions {
         let held = |s: NoiseSource| self.eta_held[s.index()];
         let tied = self.heading_scale == HeadingScale::TiedToPosition;
         let held_with_position = tied && held(NoiseSource::PoseWhite);
-        !(self.fix_noise || held(NoiseSource::HeadingWhite) || held_with_position)
+        let held_by_user = held(NoiseSource::HeadingWhite) && !self.heading_white_held_at_floor;
+        !(self.fix_noise || held_by_user || held_with_position)
     }
 
     /// Whether the heading's white noise has the readings' as its floor:
@@ -671,9 +692,17 @@ impl EivOptions {
 
     /// These options with the heading readings' white noise `floor` given
     /// where one was read and it applies.
+    /// With [`EivOptions::heading_white_at_floor`], the floor is the
+    /// whole of the heading's white noise: the starting model's level
+    /// dropped and its scale held.
     pub(crate) fn with_heading_floor(mut self, floor: Option<f64>) -> EivOptions {
         if floor.is_some() && self.reads_heading_floor() {
             self.research.heading_white_sigma_floor = floor;
+            if self.heading_white_at_floor && self.heading_scale == HeadingScale::Separate {
+                self.noise.heading_white_sigma_rad = 0.0;
+                self.eta_held[NoiseSource::HeadingWhite.index()] = true;
+                self.heading_white_held_at_floor = true;
+            }
         }
         self
     }

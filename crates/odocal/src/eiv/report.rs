@@ -462,6 +462,20 @@ research_pub! {
         /// it. None with the noise held or the heading's level known.
         #[serde(default)]
         pub heading_noise_floor: Option<f64>,
+        /// Whether the heading's white noise is the readings' level alone
+        /// ([`EivOptions::heading_white_at_floor`](crate::eiv::EivOptions::heading_white_at_floor)
+        /// took effect): [`EivReport::heading_noise_floor`] is then the
+        /// whole of it, and its scale η_5 is held.
+        #[serde(default)]
+        pub heading_white_at_floor: bool,
+        /// With the heading's white noise at its readings' level: twice the
+        /// fall of the objective M from that level to one of twice its
+        /// variance, θ and η held at the estimate's (a lower bound of the
+        /// likelihood ratio of a level above the readings'). Above 10.83
+        /// (the χ²₁ quantile at 0.1 %) `calibrate` sets the fit aside for
+        /// one with that level estimated.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub heading_white_above_floor: Option<f64>,
         /// The wheel noise's correlation times tried and the M each fit
         /// reached, `[τ_c s, τ_w s, M]`: the starting model's and the slow
         /// one's ([`ResearchOptions::choose_time_constants`](crate::eiv::ResearchOptions::choose_time_constants));

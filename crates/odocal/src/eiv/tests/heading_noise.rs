@@ -133,3 +133,59 @@ fn a_fit_reports_the_heading_noise_of_its_readings() {
     let r_off = estimate(&input, &start, &off).expect("eiv");
     assert!(r_off.heading_noise_floor.is_none());
 }
+
+/// With [`EivOptions::heading_white_at_floor`] the readings' floor is the
+/// whole of the heading's white noise: the starting level dropped, its
+/// scale held, the floor still in R. A level the user holds as known gets
+/// no floor, with the option or without.
+#[test]
+#[allow(clippy::float_cmp)] // set, not computed
+fn at_the_floor_the_readings_are_the_whole_heading_noise() {
+    let out = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) }).expect("sim");
+    let input = input_of(&out.drive);
+    let windows = || make_windows(input.parts, 6000);
+    let floor = 4e-4;
+    let at_floor = EivOptions { heading_white_at_floor: true, ..EivOptions::default() };
+    let opts = at_floor.clone().with_heading_floor(Some(floor));
+    let heading = NoiseSource::HeadingWhite.index();
+    assert!(opts.eta_held[heading], "the scale is held");
+    assert_eq!(opts.noise.heading_white_sigma_rad, 0.0);
+    assert!(opts.heading_floor_applies() && opts.heading_floor_given());
+    let eta = [0.0, 0.0, 0.0, 0.0, 0.0, 2.0];
+    let v = Problem::new(&input, windows(), &opts).variances(&eta, false);
+    assert_eq!(v.heading_white_floor, floor * floor);
+    assert_eq!(v.pose[2], 0.0, "no level above the readings'");
+    let plain = EivOptions::default().with_heading_floor(Some(floor));
+    assert!(Problem::new(&input, windows(), &plain).variances(&eta, false).pose[2] > 0.0);
+
+    let mut known = at_floor;
+    known.hold_known(&[NoiseSource::HeadingWhite]);
+    let known = known.with_heading_floor(Some(floor));
+    assert_eq!(known.research.heading_white_sigma_floor, None, "a known level reads no floor");
+    assert!(!known.heading_floor_applies());
+    assert_eq!(known.noise.heading_white_sigma_rad, EivOptions::default().noise.heading_white_sigma_rad);
+}
+
+/// A fit at the floor reports the readings' level as the heading's white
+/// noise, to the bit, with its scale held at 0 and no σ; with the noise
+/// held there is no floor and the option does nothing.
+#[test]
+#[allow(clippy::float_cmp)] // hypot(0, f) is f
+fn a_fit_at_the_floor_reports_the_readings_level() {
+    let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(2) }).expect("sim");
+    let input = input_of(&out.drive);
+    let start = batch_gn_all(&out.drive);
+    let at_floor = EivOptions { heading_white_at_floor: true, ..EivOptions::default() };
+    let r = estimate(&input, &start, &at_floor).expect("eiv");
+    assert!(r.heading_white_at_floor);
+    let floor = r.heading_noise_floor.expect("a floor read off the readings");
+    assert_eq!(r.noise.heading_white_sigma_rad, floor);
+    let heading = NoiseSource::HeadingWhite.index();
+    assert_eq!((r.eta[heading], r.eta_sigma[heading]), (0.0, 0.0));
+    let free = estimate(&input, &start, &EivOptions::default()).expect("eiv");
+    assert!(!free.heading_white_at_floor);
+    assert_ne!(free.theta, r.theta, "the two fits differ");
+
+    let held = estimate(&input, &start, &EivOptions { fix_noise: true, ..at_floor }).expect("eiv");
+    assert!(!held.heading_white_at_floor && held.heading_noise_floor.is_none());
+}
