@@ -62,7 +62,7 @@ const USAGE: &str = concat!(
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
-    [--correct-bias-of PARAMS] [--lateral-from-readings] [--a-y-held-from-readings] [--no-a-y-floor] [--no-heading-floor]
+    [--correct-bias-of PARAMS] [--lateral-from-readings] [--a-y-held-from-readings] [--no-a-y-floor] [--no-heading-floor] [--heading-white-estimated]
     [--time-constant-choice]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
@@ -84,6 +84,7 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
 --no-a-y-floor: the default without the floor of a_y's σ at its readings' white noise (a_y_floor_from_readings off).
 --no-heading-floor: the default without the heading readings' white noise in the heading's variance (heading_floor_from_readings off).
+--heading-white-estimated: the heading's white noise estimated above its readings' from the start (heading_white_readings_first off).
 --time-constant-choice: the default with a slow wheel-noise model (τ_c × 10, τ_w × 20) tried where a noise source
     ends at its lower clamp, the fit with the lower M kept (choose_time_constants on).
 --clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
@@ -132,6 +133,8 @@ struct Settings {
     no_a_y_floor: bool,
     /// `--no-heading-floor`: `ResearchOptions::heading_floor_from_readings` off.
     no_heading_floor: bool,
+    /// `--heading-white-estimated`: `EivMethodOptions::heading_white_readings_first` off.
+    heading_white_estimated: bool,
     /// `--time-constant-choice`: `ResearchOptions::choose_time_constants` on.
     time_constant_choice: bool,
     /// `--clamp-refit-common-eta`: `ResearchOptions::clamp_refit_common_mode_eta`.
@@ -159,6 +162,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
             "no-clamp-refit",
             "no-a-y-floor",
             "no-heading-floor",
+            "heading-white-estimated",
             "time-constant-choice",
             lateral,
             a_y_held,
@@ -183,6 +187,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         no_clamp_refit: a.flag("no-clamp-refit"),
         no_a_y_floor: a.flag("no-a-y-floor"),
         no_heading_floor: a.flag("no-heading-floor"),
+        heading_white_estimated: a.flag("heading-white-estimated"),
         time_constant_choice: a.flag("time-constant-choice"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
@@ -291,6 +296,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.clamp_refit_hold_scale = !a.no_clamp_refit;
         e.filter.research.a_y_floor_from_readings = !a.no_a_y_floor;
         e.filter.research.heading_floor_from_readings = !a.no_heading_floor;
+        e.heading_white_readings_first = !a.heading_white_estimated;
         e.filter.research.choose_time_constants = a.time_constant_choice;
         e.filter.research.clamp_refit_common_mode_eta = a.clamp_refit_common_eta;
         if let Some(m) = a.heading_drift_min_eta {

@@ -142,7 +142,7 @@ research_pub! {
             quantisation_step_from_readings: q_found,
             a_y_noise_floor: opts.research.a_y_sigma_floor,
             heading_noise_floor: opts.research.heading_white_sigma_floor.filter(|_| opts.heading_floor_given()),
-            heading_white_at_floor: opts.heading_white_held_at_floor,
+            heading_white_at_floor: opts.research.heading_white_held_at_floor,
             heading_white_above_floor,
             time_constant_costs,
         };
@@ -238,7 +238,7 @@ fn prepare<'o>(
 /// bound of the likelihood ratio of a level above the readings'
 /// ([`EivReport::heading_white_above_floor`]).
 fn heading_white_ratio(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Option<f64>> {
-    let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.heading_white_held_at_floor) else {
+    let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.research.heading_white_held_at_floor) else {
         return Ok(None);
     };
     let mut above = opts.clone();

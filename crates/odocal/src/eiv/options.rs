@@ -196,7 +196,7 @@ pub struct EivOptions {
     /// Default [`HeadingScale::Separate`] (see its docs).
     pub heading_scale: HeadingScale,
     /// Where the heading readings' own white noise is read
-    /// ([`EivReport::heading_noise_floor`](crate::eiv::EivReport::heading_noise_floor)),
+    /// (`EivReport::heading_noise_floor`),
     /// the reference heading's white noise is that and nothing more: the
     /// starting model's heading white noise is dropped and its scale η_5
     /// held, so no fitted level above the readings' can take up the
@@ -208,11 +208,6 @@ pub struct EivOptions {
     /// the readings' level first ([`EivMethodOptions::heading_white_readings_first`](crate::calibrate::EivMethodOptions::heading_white_readings_first)).
     /// Default false.
     pub heading_white_at_floor: bool,
-    /// Set where [`EivOptions::heading_white_at_floor`] took effect: the
-    /// heading white noise's scale is held at the readings' level, not by
-    /// the user (whose held level has no floor).
-    #[serde(skip)]
-    pub(crate) heading_white_held_at_floor: bool,
     /// The estimator's modelling alternatives; public with the cargo
     /// feature `research` (the studies of crates/odocal-lab), otherwise
     /// always their defaults (`EivOptions::spec` aside).
@@ -431,6 +426,12 @@ macro_rules! research_options {
             /// replicates hold the drive's). Default `None`: read off the
             /// readings when [`ResearchOptions::heading_floor_from_readings`].
             $vis heading_white_sigma_floor: Option<f64>,
+            /// Set by the fit where [`EivOptions::heading_white_at_floor`]
+            /// took effect: the heading white noise's scale is held at the
+            /// readings' level, not by the user (whose held level has no
+            /// floor). Not an input.
+            #[serde(skip)]
+            $vis heading_white_held_at_floor: bool,
             /// After a fit that fails its checks with a noise scale at its
             /// upper clamp (the runaway of heavy common-mode wheel noise and
             /// slip: the common-mode scale at its clamp, c_e several per cent
@@ -526,6 +527,7 @@ impl Default for ResearchOptions {
             a_y_sigma_floor: None,
             heading_floor_from_readings: true,
             heading_white_sigma_floor: None,
+            heading_white_held_at_floor: false,
             clamp_refit_hold_scale: true,
             choose_time_constants: false,
             clamp_refit_common_mode_eta: None,
@@ -596,7 +598,6 @@ impl Default for EivOptions {
             quantisation: QuantisationModel::Counting,
             heading_scale: HeadingScale::Separate,
             heading_white_at_floor: false,
-            heading_white_held_at_floor: false,
             quantisation_level: QuantisationLevel::FromReadings,
             lateral_noise: LateralNoise::TiedToWheelWhite,
             research: ResearchOptions::default(),
@@ -671,7 +672,7 @@ impl EivOptions {
         let held = |s: NoiseSource| self.eta_held[s.index()];
         let tied = self.heading_scale == HeadingScale::TiedToPosition;
         let held_with_position = tied && held(NoiseSource::PoseWhite);
-        let held_by_user = held(NoiseSource::HeadingWhite) && !self.heading_white_held_at_floor;
+        let held_by_user = held(NoiseSource::HeadingWhite) && !self.research.heading_white_held_at_floor;
         !(self.fix_noise || held_by_user || held_with_position)
     }
 
@@ -701,7 +702,7 @@ impl EivOptions {
             if self.heading_white_at_floor && self.heading_scale == HeadingScale::Separate {
                 self.noise.heading_white_sigma_rad = 0.0;
                 self.eta_held[NoiseSource::HeadingWhite.index()] = true;
-                self.heading_white_held_at_floor = true;
+                self.research.heading_white_held_at_floor = true;
             }
         }
         self
