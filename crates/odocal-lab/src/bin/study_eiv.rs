@@ -178,6 +178,8 @@ fn calibrate_eiv(
         bootstrap: None,
         estimate_heading_offset: heading_offset,
         correct_bias: None,
+        // The filter as the row gives it (no fit at the heading readings' level first).
+        heading_white_readings_first: false,
     });
     let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() })?;
     let time_s = t.elapsed().as_secs_f64();
