@@ -307,7 +307,9 @@ fn eiv_flags_belong_to_eiv() {
 
 /// The text names the noise sources at their lower clamp (those the JSON's
 /// η puts below 0 without a σ): on the `white` preset, a perfect reference
-/// and only white wheel noise, every source but the white wheel noise.
+/// and only white wheel noise, every source but the white wheel noise and
+/// the heading's white noise, which is its readings' own (none: R's floor,
+/// 1e-5 rad) and named so.
 #[test]
 fn the_text_names_the_noise_sources_the_data_show_none_of() {
     let d = tempfile::tempdir().expect("tmp");
@@ -323,8 +325,11 @@ fn the_text_names_the_noise_sources_the_data_show_none_of() {
         .filter(|&j| eta[j].as_f64().expect("η") < 0.0 && sigma[j].as_f64().expect("σ") == 0.0)
         .map(|j| names[j])
         .collect();
-    assert_eq!(absent, &names[1..], "{eta} {sigma}");
+    assert_eq!(absent, &names[1..5], "{eta} {sigma}");
     let line =
         format!("at the lower clamp (the data show none of it, so its level above reads 0): {}", absent.join(", "));
     assert!(text(&o.stdout).contains(&line), "{}", text(&o.stdout));
+    assert_eq!(r["eiv"]["heading_white_at_floor"], true);
+    let heading = "heading white noise: its readings' own (0.010 mrad), no level above it fitted";
+    assert!(text(&o.stdout).contains(heading), "{}", text(&o.stdout));
 }

@@ -710,7 +710,10 @@ impl EivMethodOptions {
     /// `start_c_e_variance` is the start's variance of c_e, which a refit
     /// holding c_e carries.
     fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions, start_c_e_variance: f64) -> Fitted {
-        if !self.heading_white_readings_first || filter.heading_white_at_floor {
+        // No floor where the noise is held, the heading's level known or
+        // its scale tied to the position's.
+        let floor_applies = filter.reads_heading_floor() && filter.heading_scale == eiv::HeadingScale::Separate;
+        if !self.heading_white_readings_first || filter.heading_white_at_floor || !floor_applies {
             return self.fit_with(input, theta, filter, start_c_e_variance);
         }
         // The probe is judged by its checks, so it is never bias-corrected
@@ -719,8 +722,12 @@ impl EivMethodOptions {
         let at_floor = EivOptions { heading_white_at_floor: true, ..filter.clone() };
         let first = probe.fit_with(input, theta, &at_floor, start_c_e_variance);
         let set_aside = match &first.fit {
-            // No floor read: the fit is the one the given options make.
-            Ok(r) if !r.heading_white_at_floor => return first,
+            // No floor read: the fit is the one the given options make, but
+            // for the bias correction the probe leaves out of a fit that
+            // fails its checks.
+            Ok(r) if !r.heading_white_at_floor => {
+                return if self.fallback { first } else { self.fit_with(input, theta, filter, start_c_e_variance) };
+            }
             Ok(r) => {
                 let findings: Vec<EivWarning> =
                     r.warnings.iter().filter(|w| is_misspecification(w, r) && demands_fallback(w)).cloned().collect();

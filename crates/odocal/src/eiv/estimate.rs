@@ -238,7 +238,8 @@ fn prepare<'o>(
 /// bound of the likelihood ratio of a level above the readings'
 /// ([`EivReport::heading_white_above_floor`]).
 fn heading_white_ratio(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Option<f64>> {
-    let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.research.heading_white_held_at_floor) else {
+    let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.research.heading_white_held_at_floor)
+    else {
         return Ok(None);
     };
     let mut above = opts.clone();
