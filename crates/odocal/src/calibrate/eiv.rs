@@ -187,7 +187,10 @@ pub struct EivMethodOptions {
     /// Fit first with the reference heading's white noise at its readings'
     /// own level ([`EivOptions::heading_white_at_floor`]): where that fit
     /// passes the checks it is the estimate. Where it fails one that sends
-    /// the result to the fallback, or the filter fails, the drive's heading
+    /// the result to the fallback, the filter fails, or a level above the
+    /// readings' (the starting model's, at least the readings' own) lowers
+    /// 2M by more than 10.83 (`EivReport::heading_white_above_floor`), the
+    /// drive's heading
     /// carries noise its readings do not show (a heading whose noise is
     /// correlated over a few samples, as a GNSS baseline's), and the fit
     /// from [`EivMethodOptions::filter`] as given (the level above the
@@ -308,7 +311,7 @@ pub(crate) struct FloorSetAside {
     /// Its findings that send a result to the fallback.
     pub findings: Vec<EivWarning>,
     /// Its [`EivReport::heading_white_above_floor`]: twice the fall of M
-    /// when the heading's white noise is doubled in variance.
+    /// with a level above the readings'.
     pub likelihood_ratio: Option<f64>,
     /// The filter's error, where it failed.
     pub error: Option<String>,
@@ -694,7 +697,14 @@ impl EivMethodOptions {
         o
     }
 
-    /// The filter from `theta` without the bias correction; then, unless
+    /// With [`EivMethodOptions::heading_white_readings_first`], first the
+    /// fit at the heading readings' level ([`EivMethodOptions::fit_with`]
+    /// of `filter` with [`EivOptions::heading_white_at_floor`]); it stands
+    /// unless its checks send it to the fallback, the filter fails, or its
+    /// likelihood ratio exceeds [`HEADING_WHITE_LR_THRESHOLD`], and then
+    /// the fit from `filter` as given follows, with why in
+    /// [`Fitted::floor_set_aside`]. That fit, [`EivMethodOptions::fit_with`]:
+    /// the filter from `theta` without the bias correction; then, unless
     /// the fallback is on and the checks find a misspecification that sends
     /// the result to it ([`demands_fallback`]), the correction (a
     /// bootstrap, B more fits) applied to it — so the

@@ -142,7 +142,7 @@ research_pub! {
             quantisation_step_from_readings: q_found,
             a_y_noise_floor: opts.research.a_y_sigma_floor,
             heading_noise_floor: opts.research.heading_white_sigma_floor.filter(|_| opts.heading_floor_given()),
-            heading_white_at_floor: opts.research.heading_white_held_at_floor,
+            heading_white_at_floor: opts.research.heading_white_held_at_floor.is_some(),
             heading_white_above_floor,
             time_constant_costs,
         };
@@ -233,17 +233,19 @@ fn prepare<'o>(
 
 /// Where the heading's white noise is held at its readings' level
 /// ([`EivOptions::heading_white_at_floor`]): twice the fall of M from that
-/// level to one of twice its variance (the readings' noise once more above
-/// them), θ and η held at the fit's (one objective-only pass). A lower
-/// bound of the likelihood ratio of a level above the readings'
+/// level to one with a level above it (the larger of the starting model's
+/// level, which the fit at the floor dropped, and the readings' own), θ
+/// and η held at the fit's (one objective-only pass). A lower bound of the
+/// likelihood ratio of a level above the readings'
 /// ([`EivReport::heading_white_above_floor`]).
 fn heading_white_ratio(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Option<f64>> {
-    let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.research.heading_white_held_at_floor)
+    let (Some(floor), Some(start)) =
+        (opts.research.heading_white_sigma_floor, opts.research.heading_white_held_at_floor)
     else {
         return Ok(None);
     };
     let mut above = opts.clone();
-    above.noise.heading_white_sigma_rad = floor;
+    above.noise.heading_white_sigma_rad = start.max(floor);
     let p = Problem::new(prob.input, prob.windows.clone(), &above);
     let mode = Mode::cost(opts.research.covariance == CovarianceMode::FollowsTheta);
     let m = p.evaluate(&fit.theta, &fit.theta_reference(), &fit.eta, mode)?.total.merit();

@@ -427,11 +427,12 @@ macro_rules! research_options {
             /// readings when [`ResearchOptions::heading_floor_from_readings`].
             $vis heading_white_sigma_floor: Option<f64>,
             /// Set by the fit where [`EivOptions::heading_white_at_floor`]
-            /// took effect: the heading white noise's scale is held at the
-            /// readings' level, not by the user (whose held level has no
-            /// floor). Not an input.
+            /// took effect: the starting model's heading white noise it
+            /// dropped, rad (the scale is then held at the readings' level,
+            /// not by the user, whose held level has no floor). Not an
+            /// input.
             #[serde(skip)]
-            $vis heading_white_held_at_floor: bool,
+            $vis heading_white_held_at_floor: Option<f64>,
             /// After a fit that fails its checks with a noise scale at its
             /// upper clamp (the runaway of heavy common-mode wheel noise and
             /// slip: the common-mode scale at its clamp, c_e several per cent
@@ -527,7 +528,7 @@ impl Default for ResearchOptions {
             a_y_sigma_floor: None,
             heading_floor_from_readings: true,
             heading_white_sigma_floor: None,
-            heading_white_held_at_floor: false,
+            heading_white_held_at_floor: None,
             clamp_refit_hold_scale: true,
             choose_time_constants: false,
             clamp_refit_common_mode_eta: None,
@@ -672,7 +673,7 @@ impl EivOptions {
         let held = |s: NoiseSource| self.eta_held[s.index()];
         let tied = self.heading_scale == HeadingScale::TiedToPosition;
         let held_with_position = tied && held(NoiseSource::PoseWhite);
-        let held_by_user = held(NoiseSource::HeadingWhite) && !self.research.heading_white_held_at_floor;
+        let held_by_user = held(NoiseSource::HeadingWhite) && self.research.heading_white_held_at_floor.is_none();
         !(self.fix_noise || held_by_user || held_with_position)
     }
 
@@ -700,9 +701,9 @@ impl EivOptions {
         if floor.is_some() && self.reads_heading_floor() {
             self.research.heading_white_sigma_floor = floor;
             if self.heading_white_at_floor && self.heading_scale == HeadingScale::Separate {
+                self.research.heading_white_held_at_floor = Some(self.noise.heading_white_sigma_rad);
                 self.noise.heading_white_sigma_rad = 0.0;
                 self.eta_held[NoiseSource::HeadingWhite.index()] = true;
-                self.research.heading_white_held_at_floor = true;
             }
         }
         self

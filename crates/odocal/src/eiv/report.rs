@@ -469,8 +469,9 @@ research_pub! {
         #[serde(default)]
         pub heading_white_at_floor: bool,
         /// With the heading's white noise at its readings' level: twice the
-        /// fall of the objective M from that level to one of twice its
-        /// variance, θ and η held at the estimate's (a lower bound of the
+        /// fall of the objective M from that level to one with a level above
+        /// it (the starting model's, at least the readings' own), θ and η
+        /// held at the estimate's (a lower bound of the
         /// likelihood ratio of a level above the readings'). Above 10.83
         /// (the χ²₁ quantile at 0.1 %) `calibrate` sets the fit aside for
         /// one with that level estimated.
