@@ -621,7 +621,7 @@ impl Estimator for EivMethodOptions {
             Err(e) => return Err(e),
         };
         let (findings, notes) = findings_and_notes(report.as_deref());
-        let fall_back = error.is_some() || (self.fallback && findings.iter().any(demands_fallback));
+        let fall_back = error.is_some() || (self.fallback && report.as_deref().is_some_and(sends_to_fallback));
         let mut warnings: Vec<Warning> = findings
             .iter()
             .map(|finding| Warning::EivCheckFailed { finding: finding.clone(), fell_back: fall_back })
@@ -720,10 +720,7 @@ impl EivMethodOptions {
     /// `start_c_e_variance` is the start's variance of c_e, which a refit
     /// holding c_e carries.
     fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions, start_c_e_variance: f64) -> Fitted {
-        // No floor where the noise is held, the heading's level known or
-        // its scale tied to the position's.
-        let floor_applies = filter.reads_heading_floor() && filter.heading_scale == eiv::HeadingScale::Separate;
-        if !self.heading_white_readings_first || filter.heading_white_at_floor || !floor_applies {
+        if !self.heading_white_readings_first || filter.heading_white_at_floor || !filter.can_hold_heading_at_floor() {
             return self.fit_with(input, theta, filter, start_c_e_variance);
         }
         // The probe is judged by its checks, so it is never bias-corrected
@@ -732,15 +729,8 @@ impl EivMethodOptions {
         let at_floor = EivOptions { heading_white_at_floor: true, ..filter.clone() };
         let first = probe.fit_with(input, theta, &at_floor, start_c_e_variance);
         let set_aside = match &first.fit {
-            // No floor read: the fit is the one the given options make, but
-            // for the bias correction the probe leaves out of a fit that
-            // fails its checks.
-            Ok(r) if !r.heading_white_at_floor => {
-                return if self.fallback { first } else { self.fit_with(input, theta, filter, start_c_e_variance) };
-            }
             Ok(r) => {
-                let findings: Vec<EivWarning> =
-                    r.warnings.iter().filter(|w| is_misspecification(w, r) && demands_fallback(w)).cloned().collect();
+                let findings: Vec<EivWarning> = fallback_findings(r).cloned().collect();
                 let likelihood_ratio = r.heading_white_above_floor;
                 if findings.is_empty() && likelihood_ratio.is_none_or(|lr| lr <= HEADING_WHITE_LR_THRESHOLD) {
                     return first;
@@ -780,8 +770,7 @@ impl EivMethodOptions {
         }
         let mut correction_failed = None;
         if let Ok(r) = &mut fit {
-            let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r) && demands_fallback(w));
-            if !(self.fallback && misspecified) {
+            if !(self.fallback && sends_to_fallback(r)) {
                 match eiv::apply_bias_correction(input, r, refit_options.as_ref().unwrap_or(filter)) {
                     Ok(()) => {}
                     Err(e @ Error::InvalidOption { .. }) => fit = Err(e),
@@ -863,6 +852,18 @@ fn batch_start(
 /// (docs/validation.md, "θ unstable across halves: EIV kept").
 fn demands_fallback(finding: &EivWarning) -> bool {
     !matches!(finding, EivWarning::UnstableAcrossHalves { .. })
+}
+
+/// The findings of `r` that send the result to the fallback: its
+/// misspecifications ([`is_misspecification`]) that [`demands_fallback`].
+fn fallback_findings(r: &EivReport) -> impl Iterator<Item = &EivWarning> {
+    r.warnings.iter().filter(|w| is_misspecification(w, r) && demands_fallback(w))
+}
+
+/// Whether any finding of `r` sends the result to the fallback
+/// ([`fallback_findings`]).
+fn sends_to_fallback(r: &EivReport) -> bool {
+    fallback_findings(r).next().is_some()
 }
 
 /// The filter's findings other than `Unobservable` (reported through the

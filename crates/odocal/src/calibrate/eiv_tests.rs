@@ -16,6 +16,19 @@ fn eiv_method(filter: EivOptions, fallback: bool) -> Method {
     Method::Eiv(EivMethodOptions { filter, fallback, ..Default::default() })
 }
 
+/// `d`'s time stamps and sample time with the readings `measured`.
+fn with_measured(d: &crate::Drive, measured: crate::drive::Signals, context: &str) -> crate::Drive {
+    crate::drive::DriveBuilder {
+        t: d.t().to_vec(),
+        measured,
+        sample_time_s: Some(d.sample_time_s()),
+        context: context.into(),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive")
+}
+
 fn detail(r: &crate::CalibrationReport) -> &EivDetail {
     match &r.detail {
         crate::calibrate::MethodDetail::Eiv(d) => d,
@@ -985,15 +998,7 @@ fn theta_unstable_across_halves_keeps_the_eiv_estimate() {
     for n in [&mut measured.n_rl, &mut measured.n_rr] {
         n[half..].iter_mut().for_each(|x| *x *= 1.005);
     }
-    let changed = crate::drive::DriveBuilder {
-        t: d.t().to_vec(),
-        measured,
-        sample_time_s: Some(d.sample_time_s()),
-        context: "scale changed halfway".into(),
-        ..Default::default()
-    }
-    .build()
-    .expect("drive");
+    let changed = with_measured(d, measured, "scale changed halfway");
     let r = calibrate(&changed, &CalibrationOptions::default()).expect("calibrate");
     let failed: Vec<_> = r
         .warnings
@@ -1065,15 +1070,7 @@ fn the_heading_white_noise_is_the_readings_own_first() {
         x = a * x + sigma * (1.0 - a * a).sqrt() * rng.sample::<f64, _>(rand_distr::StandardNormal);
         *psi += x;
     }
-    let correlated = crate::drive::DriveBuilder {
-        t: d.t().to_vec(),
-        measured,
-        sample_time_s: Some(d.sample_time_s()),
-        context: "heading noise correlated over 0.2 s".into(),
-        ..Default::default()
-    }
-    .build()
-    .expect("drive");
+    let correlated = with_measured(d, measured, "heading noise correlated over 0.2 s");
     let r = calibrate(&correlated, &CalibrationOptions::default()).expect("calibrate");
     let det = detail(&r);
     let found = det.heading_white_floor_set_aside.as_ref().expect("the fit at the floor set aside");

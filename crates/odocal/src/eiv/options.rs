@@ -692,6 +692,15 @@ impl EivOptions {
             && self.research.heading_white_sigma_floor.is_none()
     }
 
+    /// Whether [`EivOptions::heading_white_at_floor`] takes effect on these
+    /// options: the readings' floor is read (the noise not held, the
+    /// heading's level not known) and the heading's white noise has its
+    /// own scale. The floor is then always read (R's own where the readings
+    /// show less).
+    pub(crate) fn can_hold_heading_at_floor(&self) -> bool {
+        self.reads_heading_floor() && self.heading_scale == HeadingScale::Separate
+    }
+
     /// These options with the heading readings' white noise `floor` given
     /// where one was read and it applies.
     /// With [`EivOptions::heading_white_at_floor`], the floor is the
@@ -699,8 +708,9 @@ impl EivOptions {
     /// dropped and its scale held.
     pub(crate) fn with_heading_floor(mut self, floor: Option<f64>) -> EivOptions {
         if floor.is_some() && self.reads_heading_floor() {
+            let hold = self.heading_white_at_floor && self.can_hold_heading_at_floor();
             self.research.heading_white_sigma_floor = floor;
-            if self.heading_white_at_floor && self.heading_scale == HeadingScale::Separate {
+            if hold {
                 self.research.heading_white_held_at_floor = Some(self.noise.heading_white_sigma_rad);
                 self.noise.heading_white_sigma_rad = 0.0;
                 self.eta_held[NoiseSource::HeadingWhite.index()] = true;
