@@ -1045,7 +1045,7 @@ fn theta_unstable_across_halves_keeps_the_eiv_estimate() {
 /// estimated follows: the fit the option switched off gives.
 #[test]
 fn the_heading_white_noise_is_the_readings_own_first() {
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
     let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(6) }).expect("sim");
     let estimated_first = CalibrationOptions {
         method: Method::Eiv(EivMethodOptions { heading_white_readings_first: false, ..Default::default() }),
@@ -1063,12 +1063,10 @@ fn the_heading_white_noise_is_the_readings_own_first() {
 
     let d = &out.drive;
     let mut measured = d.measured().clone();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-    let (a, sigma) = ((-d.sample_time_s() / 0.2).exp(), 3e-3);
-    let mut x = 0.0;
+    let rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut noise = crate::sim::GaussMarkov::new(rng, 3e-3, 0.2, d.sample_time_s());
     for psi in &mut measured.psi {
-        x = a * x + sigma * (1.0 - a * a).sqrt() * rng.sample::<f64, _>(rand_distr::StandardNormal);
-        *psi += x;
+        *psi += noise.next();
     }
     let correlated = with_measured(d, measured, "heading noise correlated over 0.2 s");
     let r = calibrate(&correlated, &CalibrationOptions::default()).expect("calibrate");

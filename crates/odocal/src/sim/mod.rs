@@ -84,7 +84,8 @@ mod world;
 use options::invalid;
 pub(crate) use options::SpeedOptions;
 pub use options::{CdStep, DriftOptions, NoiseOptions, SimOptions};
-use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
+pub(crate) use route::GaussMarkov;
+use route::{build_route, stream, Encoder, Route, SpeedProfile, White};
 research_use! { world::{NoiseRegime, WorldSummary} }
 
 /// Grid step of the speed profile along the route, m.

@@ -284,7 +284,7 @@ impl SpeedProfile {
 // Noise processes.
 
 /// First-order Gauss-Markov process sampled at a fixed step (exact discretisation).
-pub(super) struct GaussMarkov {
+pub(crate) struct GaussMarkov {
     rng: ChaCha8Rng,
     phi: f64,
     q: f64,
@@ -293,7 +293,7 @@ pub(super) struct GaussMarkov {
 }
 
 impl GaussMarkov {
-    pub(super) fn new(mut rng: ChaCha8Rng, sigma: f64, tau: f64, dt: f64) -> Self {
+    pub(crate) fn new(mut rng: ChaCha8Rng, sigma: f64, tau: f64, dt: f64) -> Self {
         let on = sigma > 0.0;
         let phi = (-dt / tau).exp();
         let x = if on { sigma * normal(&mut rng) } else { 0.0 };
@@ -301,7 +301,7 @@ impl GaussMarkov {
     }
 
     /// The current value; advances to the next sample.
-    pub(super) fn next(&mut self) -> f64 {
+    pub(crate) fn next(&mut self) -> f64 {
         let out = self.x;
         if self.on {
             self.x = self.phi * self.x + self.q * normal(&mut self.rng);
